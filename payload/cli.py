@@ -1,0 +1,130 @@
+"""The ``glad-payload`` command line. Each subcommand lives in the module that owns the work;
+this file only parses arguments and turns PayloadError into a one-line message and exit code."""
+
+import argparse
+import logging
+import sys
+from typing import List, Optional
+
+from payload import __version__
+from payload.errors import ConfigError, PayloadError
+
+
+def _check_config(args) -> int:
+    from payload.config import load_config
+
+    load_config(args.file)
+    print("%s: OK" % args.file)
+    return 0
+
+
+def _synth(args) -> int:
+    from payload.synth.export import main_synth
+
+    return main_synth(args)
+
+
+def _detect(args) -> int:
+    from payload.detect_cmd import main_detect
+
+    return main_detect(args)
+
+
+def _eval(args) -> int:
+    from payload.eval.cli import main_eval
+
+    return main_eval(args)
+
+
+def _run(args) -> int:
+    from payload.service import main_run
+
+    return main_run(args)
+
+
+def _demo(args) -> int:
+    from payload.demo import main_demo
+
+    return main_demo(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="glad-payload",
+        description="Onboard drone-to-drone detection (GLAD) with MAVLink bearing output.",
+    )
+    parser.add_argument("--version", action="version", version="glad-payload " + __version__)
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("check-config", help="validate a YAML config file; one line per problem")
+    p.add_argument("file", help="YAML file")
+    p.set_defaults(func=_check_config)
+
+    p = sub.add_parser("run", help="run the payload service: camera -> GLAD -> MAVLink")
+    p.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
+    p.add_argument("--frames", type=int, default=0, help="stop after this many frames (0 = run until stopped)")
+    p.set_defaults(func=_run)
+
+    p = sub.add_parser("demo", help="the whole payload on a synthetic scene against a fake autopilot on loopback")
+    p.add_argument("--out", default="demo-output", help="output folder for the annotated video and detections")
+    p.add_argument("--frames", type=int, default=300, help="frames to process")
+    p.add_argument("--config", "-c", default=None, help="YAML file (capture and mavlink sections are overridden)")
+    p.set_defaults(func=_demo)
+
+    p = sub.add_parser("detect", help="run GLAD over a video file or image folder and write detections CSV")
+    p.add_argument("source", help="video file or image folder")
+    p.add_argument("--out", required=True, help="detections CSV: frame,x,y,w,h,score,module")
+    p.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
+    p.add_argument("--video", default=None, help="also write an annotated video here")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_detect)
+
+    p = sub.add_parser("eval", help="score detections against labels (P, R, F, AP at IoU 0.5)")
+    p.add_argument("--dets", nargs="*", default=[], help="detections CSV(s) to score (with --labels)")
+    p.add_argument("--labels", nargs="*", default=[], help="label file(s) or folder(s), one per --dets")
+    p.add_argument("--split", default=None, help="run detect+score on a split of splits.json, e.g. val")
+    p.add_argument("--splits", default=None, help="splits.json (default: ../shared/data/halmstad/splits.json)")
+    p.add_argument("--clips", nargs="*", default=[], help="video files to run detect+score on (labels beside or in --labels)")
+    p.add_argument("--config", "-c", default=None, help="YAML file for detect (default: built-in defaults)")
+    p.add_argument("--json", default=None, help="also write the table as JSON here")
+    p.add_argument("--limit", type=int, default=0, help="only the first N frames of each clip (0 = all)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_eval)
+
+    p = sub.add_parser("synth", help="render a synthetic air-to-air clip: MP4 + per-frame labels CSV")
+    p.add_argument("out", help="output folder")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--width", type=int, default=1920)
+    p.add_argument("--height", type=int, default=1080)
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--background", default=None, help="video whose frames become the ground")
+    p.add_argument("--name", default=None, help="clip name (default SYN_<seed>)")
+    p.set_defaults(func=_synth)
+    return parser
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return int(args.func(args) or 0)
+    except ConfigError as exc:
+        for line in exc.problems:
+            print(line, file=sys.stderr)
+        return 2
+    except PayloadError as exc:
+        print("glad-payload: %s" % exc, file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

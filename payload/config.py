@@ -1,0 +1,443 @@
+"""The payload's configuration: a typed object built once from YAML.
+
+Every tunable of the GLAD paper lives here with its bounds. ``load_config(path)`` returns a
+``Config`` or raises ``ConfigError`` whose ``problems`` are one line each, in the form
+``FILE:LINE: dotted.key: value ... rule`` so that a field operator can fix the file.
+Validation never opens devices or loads models.
+"""
+
+import difflib
+from typing import Any, Dict, List, Optional, Tuple
+
+import yaml
+from annotated_types import Ge, Gt, Le, Lt
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from typing_extensions import Literal
+
+from payload.errors import ConfigError
+
+
+class Section(BaseModel):
+    # Unknown keys are rejected: a typo must not pass silently.
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Retry(Section):
+    initial_s: float = Field(0.5, gt=0, le=60, description="First wait before reconnecting.")
+    max_s: float = Field(10.0, gt=0, le=600, description="Longest wait between reconnect attempts.")
+
+    @model_validator(mode="after")
+    def _order(self):
+        if self.max_s < self.initial_s:
+            raise ValueError("max_s must be >= initial_s: raise max_s or lower initial_s")
+        return self
+
+
+class SyntheticSceneConfig(Section):
+    seed: int = Field(1, ge=0, description="Same seed, same scene.")
+    width: int = Field(1920, ge=64, le=8192)
+    height: int = Field(1080, ge=64, le=8192)
+    fps: float = Field(30.0, gt=0, le=1000)
+    frames: int = Field(0, ge=0, description="Frames to render; 0 = endless.")
+    background: Optional[str] = Field(None, description="Video whose frames serve as backgrounds.")
+
+
+class CaptureConfig(Section):
+    source: Literal["synthetic", "file", "folder", "v4l2", "gstreamer"] = "synthetic"
+    path: Optional[str] = Field(None, description="Video file or image folder (source file/folder).")
+    device: str = Field("/dev/video0", description="V4L2 device (source v4l2).")
+    width: int = Field(1920, ge=16, le=8192)
+    height: int = Field(1080, ge=16, le=8192)
+    fps: float = Field(30.0, gt=0, le=1000)
+    fourcc: str = Field("MJPG", min_length=4, max_length=4)
+    pipeline: Optional[str] = Field(None, description="GStreamer pipeline ending in appsink (source gstreamer).")
+    loop: bool = Field(False, description="file/folder: start again at the end.")
+    pace: bool = Field(False, description="file/folder: deliver at fps like a live camera (newest frame wins).")
+    retry: Retry = Retry()
+    synthetic: SyntheticSceneConfig = SyntheticSceneConfig()
+
+    @model_validator(mode="after")
+    def _needs(self):
+        if self.source in ("file", "folder") and not self.path:
+            raise ValueError("source %r needs capture.path: set it to the video file or image folder" % self.source)
+        if self.source == "gstreamer" and not self.pipeline:
+            raise ValueError("source 'gstreamer' needs capture.pipeline: a pipeline string ending in appsink")
+        return self
+
+
+class MountConfig(Section):
+    roll_deg: float = Field(0.0, ge=-180, le=180)
+    pitch_deg: float = Field(0.0, ge=-90, le=90)
+    yaw_deg: float = Field(0.0, ge=-180, le=180)
+
+
+class CameraConfig(Section):
+    hfov_deg: float = Field(80.0, gt=1, lt=179, description="Horizontal field of view, used when matrix is unset.")
+    matrix: Optional[Tuple[float, float, float, float]] = Field(
+        None, description="Intrinsics [fx, fy, cx, cy] in pixels at the capture resolution."
+    )
+    distortion: Optional[List[float]] = Field(None, description="OpenCV distortion [k1, k2, p1, p2, k3].")
+    mount: MountConfig = MountConfig()
+
+    @model_validator(mode="after")
+    def _dist(self):
+        if self.distortion is not None and len(self.distortion) not in (4, 5, 8):
+            raise ValueError("distortion must have 4, 5 or 8 coefficients (OpenCV order k1, k2, p1, p2[, k3...])")
+        return self
+
+
+class AppearanceConfig(Section):
+    enabled: bool = True
+    model: Optional[str] = Field(None, description="ONNX file; null = the model shipped in the package.")
+    confidence: float = Field(0.5, ge=0, le=1, description="Score threshold (T0 global, T1 local).")
+    nms_iou: float = Field(0.4, ge=0, le=1)
+    input_wh: Tuple[int, int] = Field((640, 384), description="Network input size; multiples of 32.")
+
+    @model_validator(mode="after")
+    def _multiple(self):
+        w, h = self.input_wh
+        if w % 32 or h % 32 or w <= 0 or h <= 0:
+            raise ValueError("input_wh %r: both sides must be positive multiples of 32" % (list(self.input_wh),))
+        return self
+
+
+class MotionConfig(Section):
+    enabled: bool = True
+    grid_wh: Tuple[int, int] = Field((30, 20), description="Key points per row and column.")
+    lk_window_px: int = Field(15, ge=3, le=101)
+    lk_levels: int = Field(3, ge=0, le=8)
+    lk_iterations: int = Field(30, ge=1, le=1000)
+    ransac_reproj_px: float = Field(3.0, gt=0, le=100)
+    min_tracked_points: int = Field(9, ge=4, le=10000, description="Fewer tracked points: identity homography.")
+    blur_px: int = Field(5, ge=0, le=31, description="Gaussian blur before differencing; 0 = off; odd.")
+    t2: float = Field(5.0, ge=0, le=255, description="Base frame-difference threshold T2.")
+    alpha: float = Field(1.0, ge=0, le=100, description="Weight of the lighting term T_A.")
+    beta: float = Field(0.0, ge=0, le=100, description="Weight of the camera-speed term T_M.")
+    open_iterations: int = Field(1, ge=0, le=10)
+    close_iterations: int = Field(3, ge=0, le=10)
+    min_blob_area_px: int = Field(30, ge=1, le=1000000)
+    max_blob_area_px: int = Field(3000, ge=1, le=10000000)
+    max_aspect: float = Field(3.0, ge=1, le=100, description="Longest/shortest box side allowed.")
+    merge_distance_px: float = Field(15.0, ge=0, le=1000, description="D1: merge boxes closer than this.")
+    max_blobs: int = Field(50, ge=1, le=100000, description="More blobs than this: frame too noisy, no detection.")
+    angle_spread_max: float = Field(0.8, ge=0, le=10, description="T3: circular spread of flow angles.")
+    speed_spread_max: float = Field(0.8, ge=0, le=100, description="T4: spread (std/mean) of flow speeds.")
+    min_speed_px: float = Field(1.0, ge=0, le=1000, description="T5: mean flow speed, px between frames.")
+    max_corners: int = Field(30, ge=1, le=1000)
+    corner_quality: float = Field(0.15, gt=0, le=1)
+    corner_min_distance_px: float = Field(3.0, ge=0, le=100)
+
+    @model_validator(mode="after")
+    def _rules(self):
+        if self.blur_px and self.blur_px % 2 == 0:
+            raise ValueError("blur_px %d must be odd (or 0 to switch blur off)" % self.blur_px)
+        if self.max_blob_area_px < self.min_blob_area_px:
+            raise ValueError("max_blob_area_px must be >= min_blob_area_px")
+        return self
+
+
+class StageConfig(Section):
+    appearance: AppearanceConfig = AppearanceConfig()
+    motion: MotionConfig = MotionConfig()
+
+
+class ClassifierConfig(Section):
+    enabled: bool = True
+    model: Optional[str] = Field(None, description="ONNX file; null = the model shipped in the package.")
+    threshold: float = Field(0.5, ge=0, le=1, description="MAV probability needed to accept a motion candidate.")
+
+
+class SearchRegionConfig(Section):
+    adaptive: bool = Field(True, description="Kalman-predicted centre and growing side; false = fixed square at the last box.")
+    side_px: int = Field(300, ge=32, le=4096, description="L0: side of the square region.")
+    growth_px_per_miss: float = Field(4.0, ge=0, le=1000, description="k: side grows by k per consecutive miss.")
+    process_noise: float = Field(1.0, gt=0, le=1e6, description="Kalman process noise (px/frame^2).")
+    measurement_noise: float = Field(4.0, gt=0, le=1e6, description="Kalman measurement noise (px/frame).")
+
+
+class SwitcherConfig(Section):
+    max_local_misses: int = Field(30, ge=0, le=100000, description="Back to global after this many local misses.")
+    pick: Literal["confidence", "distance"] = Field("confidence", description="Local choice among several hits.")
+    max_jump_px: float = Field(0.0, ge=0, le=10000, description="Reject local hits farther than this from the prediction; 0 = off.")
+
+
+class DetectorConfig(Section):
+    backend: Literal["cpu", "cuda", "tensorrt"] = "cpu"
+    threads: int = Field(0, ge=0, le=256, description="ONNX Runtime intra-op threads; 0 = its default.")
+    fp16: bool = Field(True, description="TensorRT: build fp16 engines.")
+    engine_cache_dir: Optional[str] = Field(None, description="TensorRT engine cache folder.")
+    global_: StageConfig = Field(
+        StageConfig(appearance=AppearanceConfig(confidence=0.5)), alias="global"
+    )
+    local: StageConfig = StageConfig(appearance=AppearanceConfig(confidence=0.1, input_wh=(320, 320)))
+    classifier: ClassifierConfig = ClassifierConfig()
+    search_region: SearchRegionConfig = SearchRegionConfig()
+    switcher: SwitcherConfig = SwitcherConfig()
+
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+
+
+class SigningConfig(Section):
+    enabled: bool = False
+    key_file: Optional[str] = Field(None, description="File holding the 32-byte key (raw or 64 hex characters).")
+
+    @model_validator(mode="after")
+    def _key(self):
+        if self.enabled and not self.key_file:
+            raise ValueError("signing.enabled needs signing.key_file")
+        return self
+
+
+class MavlinkOutputsConfig(Section):
+    tracking_image_status: bool = True
+    debug_vect: bool = True
+    debug_vect_frame: Literal["body", "level"] = "body"
+    landing_target: bool = Field(
+        False, description="WARNING: a precision-landing autopilot may steer toward what this sends."
+    )
+    max_rate_hz: float = Field(0.0, ge=0, le=1000, description="Cap on target messages per second; 0 = every frame.")
+
+
+class MavlinkConfig(Section):
+    enabled: bool = True
+    connection: str = Field("udpout:127.0.0.1:14550", min_length=1)
+    baud: int = Field(921600, ge=1200, le=12000000)
+    system_id: int = Field(1, ge=1, le=255)
+    component_id: int = Field(100, ge=1, le=255)
+    component_type: Literal["camera", "onboard_computer"] = "camera"
+    heartbeat_hz: float = Field(1.0, gt=0, le=50)
+    autopilot_timeout_s: float = Field(3.0, gt=0, le=600)
+    attitude_rate_hz: float = Field(50.0, ge=0, le=500)
+    timesync: bool = True
+    command_sysids: List[int] = Field([255], description="System ids allowed to command us (255 = a GCS).")
+    retry: Retry = Retry()
+    signing: SigningConfig = SigningConfig()
+    outputs: MavlinkOutputsConfig = MavlinkOutputsConfig()
+
+
+class OutputsConfig(Section):
+    directory: Optional[str] = Field(None, description="Where detections.csv and decisions.csv are written; null = not written.")
+    video: bool = Field(False, description="Also write an annotated video there.")
+
+
+class LoggingConfig(Section):
+    level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+    summary_interval_s: float = Field(1.0, gt=0, le=3600)
+
+
+class Config(Section):
+    capture: CaptureConfig = CaptureConfig()
+    camera: CameraConfig = CameraConfig()
+    detector: DetectorConfig = DetectorConfig()
+    mavlink: MavlinkConfig = MavlinkConfig()
+    outputs: OutputsConfig = OutputsConfig()
+    logging: LoggingConfig = LoggingConfig()
+
+
+#: Dotted prefixes whose change needs a restart; everything else is applied on SIGHUP.
+RESTART_KEYS = (
+    "capture",
+    "mavlink.connection",
+    "mavlink.baud",
+    "mavlink.system_id",
+    "mavlink.component_id",
+    "mavlink.component_type",
+    "mavlink.signing",
+    "detector.backend",
+    "detector.threads",
+    "detector.fp16",
+    "detector.engine_cache_dir",
+    "detector.global.appearance.model",
+    "detector.global.appearance.input_wh",
+    "detector.local.appearance.model",
+    "detector.local.appearance.input_wh",
+    "detector.classifier.model",
+    "outputs",
+)
+
+
+def _flatten(data: Any, prefix: str = "") -> Dict[str, Any]:
+    if isinstance(data, dict):
+        out = {}
+        for key, value in data.items():
+            out.update(_flatten(value, "%s.%s" % (prefix, key) if prefix else str(key)))
+        return out
+    return {prefix: data}
+
+
+def restart_required(old: Config, new: Config) -> List[str]:
+    """Dotted keys that differ between two configs and only take effect after a restart."""
+    a = _flatten(old.model_dump(by_alias=True))
+    b = _flatten(new.model_dump(by_alias=True))
+    changed = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+    return [k for k in changed if any(k == p or k.startswith(p + ".") for p in RESTART_KEYS)]
+
+
+# --- loading and error messages -------------------------------------------------------------
+
+
+def _line_map(text: str) -> Dict[Tuple, int]:
+    """Map each YAML key path to its 1-based line, so errors can point into the file."""
+    lines: Dict[Tuple, int] = {}
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return lines
+
+    def walk(node, path):
+        if isinstance(node, yaml.MappingNode):
+            for key_node, value_node in node.value:
+                p = path + (key_node.value,)
+                lines[p] = key_node.start_mark.line + 1
+                walk(value_node, p)
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                lines[path + (i,)] = item.start_mark.line + 1
+                walk(item, path + (i,))
+
+    if root is not None:
+        walk(root, ())
+    return lines
+
+
+def _field_for(loc: Tuple) -> Tuple[Optional[Any], Optional[type]]:
+    """The pydantic FieldInfo at a location, and the model that holds it."""
+    model: Any = Config
+    info = None
+    for part in loc:
+        if not (isinstance(model, type) and issubclass(model, BaseModel)):
+            return info, None
+        fields = model.model_fields
+        name = next((n for n, f in fields.items() if n == part or f.alias == part), None)
+        if name is None:
+            return None, model
+        info = fields[name]
+        owner = model
+        model = info.annotation
+    return info, owner
+
+
+def _bounds(info) -> Tuple[Optional[float], Optional[float], str, str]:
+    lo = hi = None
+    lo_op, hi_op = "[", "]"
+    for m in getattr(info, "metadata", []):
+        if isinstance(m, Ge):
+            lo = m.ge
+        elif isinstance(m, Gt):
+            lo, lo_op = m.gt, "("
+        elif isinstance(m, Le):
+            hi = m.le
+        elif isinstance(m, Lt):
+            hi, hi_op = m.lt, ")"
+    return lo, hi, lo_op, hi_op
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, str):
+        return repr(value)
+    if isinstance(value, float) and value.is_integer():
+        return repr(value)
+    return repr(value) if not isinstance(value, (dict, list)) else yaml.safe_dump(value, default_flow_style=True).strip()
+
+
+def _message(err: Dict[str, Any]) -> Tuple[Tuple, str]:
+    """One operator-readable message for one pydantic error: (YAML path, text)."""
+    loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-after")))
+    kind = err["type"]
+    value = err.get("input")
+    ctx = err.get("ctx", {})
+    if kind == "extra_forbidden":
+        parent_info, owner = _field_for(loc[:-1]) if len(loc) > 1 else (None, Config)
+        model = parent_info.annotation if parent_info is not None else owner
+        known = []
+        if isinstance(model, type) and issubclass(model, BaseModel):
+            known = [f.alias or n for n, f in model.model_fields.items()]
+        guess = difflib.get_close_matches(str(loc[-1]), known, n=1, cutoff=0.6)
+        hint = " (did you mean %r?)" % guess[0] if guess else " (allowed: %s)" % ", ".join(known) if known else ""
+        return loc, "unknown key%s" % hint
+    info, _ = _field_for(loc)
+    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
+        lo, hi, lo_op, hi_op = _bounds(info) if info is not None else (None, None, "[", "]")
+        if lo is not None and hi is not None:
+            return loc, "%s is not in %s%s, %s%s" % (_fmt(value), lo_op, lo, hi, hi_op)
+        limit = next(iter(ctx.values())) if ctx else "?"
+        rel = {"greater_than": "> ", "greater_than_equal": ">= ", "less_than": "< ", "less_than_equal": "<= "}[kind]
+        return loc, "%s must be %s%s" % (_fmt(value), rel, limit)
+    if kind == "literal_error":
+        return loc, "%s is not one of %s" % (_fmt(value), ctx.get("expected", ""))
+    if kind == "missing":
+        return loc, "is required"
+    if kind in ("int_type", "int_parsing", "int_from_float"):
+        return loc, "%s is not a whole number" % _fmt(value)
+    if kind in ("float_type", "float_parsing"):
+        return loc, "%s is not a number" % _fmt(value)
+    if kind in ("bool_type", "bool_parsing"):
+        return loc, "%s is not true or false" % _fmt(value)
+    if kind in ("string_type",):
+        return loc, "%s is not text" % _fmt(value)
+    if kind in ("string_too_short", "string_too_long"):
+        return loc, "%s: %s" % (_fmt(value), err["msg"].lower())
+    if kind in ("model_type", "dict_type"):
+        return loc, "%s should be a section of keys (a mapping)" % _fmt(value)
+    if kind in ("tuple_type", "list_type", "too_short", "too_long"):
+        return loc, "%s: %s" % (_fmt(value), err["msg"].lower())
+    if kind == "value_error":
+        return loc, str(ctx.get("error", err["msg"]))
+    return loc, "%s: %s" % (_fmt(value), err["msg"])
+
+
+def _dotted(loc: Tuple) -> str:
+    out = ""
+    for p in loc:
+        out += "[%d]" % p if isinstance(p, int) else ("." if out else "") + str(p)
+    return out or "(top level)"
+
+
+def parse_config(data: Any, source: str = "<config>", text: Optional[str] = None) -> Config:
+    """Validate already-parsed YAML data; raise ConfigError with one line per problem."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(["%s: the file must hold a mapping of sections (capture, detector, ...), got %s" % (source, type(data).__name__)])
+    lines = _line_map(text) if text else {}
+    try:
+        return Config.model_validate(data)
+    except ValidationError as exc:
+        problems = []
+        for err in exc.errors():
+            loc, msg = _message(err)
+            line = lines.get(loc) or next((lines[loc[:i]] for i in range(len(loc), 0, -1) if loc[:i] in lines), None)
+            where = "%s:%d" % (source, line) if line else source
+            problems.append("%s: %s: %s" % (where, _dotted(loc), msg))
+        raise ConfigError(problems) from None
+
+
+def load_config(path: Optional[str] = None) -> Config:
+    """Read and validate a YAML file; None gives the built-in defaults (= configs/default.yaml)."""
+    if path is None:
+        return Config()
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise ConfigError(["%s: cannot read config file: %s" % (path, exc.strerror or exc)]) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = "%s:%d" % (path, mark.line + 1) if mark else path
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(["%s: not valid YAML: %s" % (where, problem)]) from None
+    return parse_config(data, source=path, text=text)
+
+
+def config_with(base: Config, **overrides: Any) -> Config:
+    """A copy of ``base`` with dotted-key overrides, validated: config_with(c, **{"detector.global.appearance.enabled": False})."""
+    data = base.model_dump(by_alias=True)
+    for dotted, value in overrides.items():
+        node = data
+        parts = dotted.split(".")
+        for p in parts[:-1]:
+            node = node[p]
+        node[parts[-1]] = value
+    return parse_config(data, source="<override>")
