@@ -1,0 +1,75 @@
+"""The one interface every frame source implements.
+
+Offline use iterates (``for frame in source``); the service loop calls ``read(timeout_s)`` so
+that it keeps control while a live camera is lost and being reconnected.
+"""
+
+import abc
+import time
+from dataclasses import dataclass
+from typing import Iterator, Optional
+
+from payload.types import Frame
+
+
+class EndOfStream(Exception):
+    """A finite source (file, folder, synthetic clip) has no more frames."""
+
+
+@dataclass
+class SourceStats:
+    frames: int = 0  # frames handed out by read()/iteration
+    dropped: int = 0  # frames captured but replaced by a newer one before being read
+    reconnects: int = 0  # successful re-opens after a loss
+    connected: bool = False
+
+
+class FrameSource(abc.ABC):
+    """A camera or recording delivering ``Frame`` objects with monotonic capture times."""
+
+    #: True for cameras/pipelines (newest frame wins, loss is retried), False for recordings.
+    live = False
+
+    def __init__(self) -> None:
+        self.stats = SourceStats()
+
+    @property
+    def name(self) -> str:
+        return type(self).__name__
+
+    @abc.abstractmethod
+    def open(self) -> None:
+        """Open the source; raise SourceError with a one-line message if it cannot be opened."""
+
+    @abc.abstractmethod
+    def read(self, timeout_s: float = 1.0) -> Optional[Frame]:
+        """The next frame (for live sources: the newest one).
+
+        Returns None when no new frame arrived within timeout_s (a live source that is
+        reconnecting); raises EndOfStream when a finite source is exhausted.
+        """
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the device/file; safe to call twice."""
+
+    def __enter__(self) -> "FrameSource":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __iter__(self) -> Iterator[Frame]:
+        while True:
+            try:
+                frame = self.read(timeout_s=1.0)
+            except EndOfStream:
+                return
+            if frame is not None:
+                yield frame
+
+
+def now_ns():
+    """(monotonic, wall) clock pair in ns, read together at capture time."""
+    return time.monotonic_ns(), time.time_ns()
