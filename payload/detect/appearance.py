@@ -44,6 +44,7 @@ class Letterbox:
         return np.clip(xyxy, 0, np.array([w, h, w, h], np.float32))
 
     def to_input(self, xyxy_image: np.ndarray) -> np.ndarray:
+        """Image-pixel boxes -> input-pixel boxes."""
         sx, sy = self.scale_xy
         return np.asarray(xyxy_image, np.float32).reshape(-1, 4) * np.array([sx, sy, sx, sy], np.float32)
 
@@ -59,25 +60,6 @@ def letterbox(image_bgr: np.ndarray, input_wh: Tuple[int, int]) -> Tuple[np.ndar
     canvas = np.full((in_h, in_w, 3), PAD_VALUE, np.uint8)
     canvas[:new_h, :new_w] = image_bgr
     return canvas, Letterbox((new_w / float(w), new_h / float(h)), (int(w), int(h)), (in_w, in_h))
-
-
-def to_input(self, xyxy_image: np.ndarray) -> np.ndarray:
-        return np.asarray(xyxy_image, np.float32).reshape(-1, 4) * np.float32(self.scale)
-
-
-def letterbox(image_bgr: np.ndarray, input_wh: Tuple[int, int]) -> Tuple[np.ndarray, Letterbox]:
-    """Fit the image into input_wh (down-scale only), pad grey; returns the BGR input image and the mapping."""
-    h, w = image_bgr.shape[:2]
-    in_w, in_h = int(input_wh[0]), int(input_wh[1])
-    scale = min(in_w / float(w), in_h / float(h), 1.0)
-    new_w, new_h = min(in_w, max(1, int(round(w * scale)))), min(in_h, max(1, int(round(h * scale))))
-    if (new_w, new_h) != (w, h):
-        image_bgr = cv2.resize(image_bgr, (new_w, new_h), interpolation=cv2.INTER_AREA)
-    canvas = np.full((in_h, in_w, 3), PAD_VALUE, np.uint8)
-    canvas[:new_h, :new_w] = image_bgr
-    # the exact scale per axis differs by rounding; the mean keeps the error under half a pixel
-    exact = (new_w / float(w) + new_h / float(h)) / 2.0
-    return canvas, Letterbox(exact, (new_w, new_h), (in_w, in_h))
 
 
 def to_input(canvas_bgr: np.ndarray) -> np.ndarray:
