@@ -37,8 +37,10 @@ def crop_patches(
         x1, y1 = int(np.floor(cx - half)), int(np.floor(cy - half))
         x2, y2 = int(np.ceil(cx + half)), int(np.ceil(cy + half))
         pad = (max(0, -y1), max(0, y2 - h), max(0, -x1), max(0, x2 - w))
-        crop = image_bgr[max(0, y1):min(h, y2), max(0, x1):min(w, x2)]
-        if crop.size == 0:
+        cx1, cy1 = min(max(0, x1), w), min(max(0, y1), h)
+        cx2, cy2 = max(min(w, x2), cx1), max(min(h, y2), cy1)
+        crop = image_bgr[cy1:cy2, cx1:cx2]
+        if crop.size == 0:  # the square lies wholly outside the image
             out[i] = 114
             continue
         if any(pad):
