@@ -140,6 +140,7 @@ def main():
     ap.add_argument("--scale-max", type=float, default=1.3)
     ap.add_argument("--neg-frac", type=float, default=0.3)
     ap.add_argument("--width", type=float, default=1.0)
+    ap.add_argument("--wh-weight", type=float, default=1.0)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tuning)")
@@ -181,7 +182,7 @@ def main():
         npos = mask.sum().clamp(min=1)
         l_off = (F.l1_loss(out[:, 1:3], reg[:, 0:2], reduction="none") * mask).sum() / npos
         l_wh = (F.l1_loss(out[:, 3:5], reg[:, 2:4], reduction="none") * mask).sum() / npos
-        loss = l_hm + l_off + l_wh
+        loss = l_hm + l_off + args.wh_weight * l_wh
         opt.zero_grad()
         loss.backward()
         opt.step()
