@@ -157,7 +157,9 @@ def test_jittering_texture_is_rejected_by_motion_classifier():
     for by in range(0, side, 6):
         for bx in range(0, side, 6):
             dx, dy = rng.uniform(-4, 4, 2).round().astype(int)
-            jittered[by : by + 6, bx : bx + 6] = leaves[8 + by + dy : 14 + by + dy, 8 + bx + dx : 14 + bx + dx]
+            jittered[by : by + 6, bx : bx + 6] = leaves[
+                8 + by + dy : 14 + by + dy, 8 + bx + dx : 14 + bx + dx
+            ]
     ground_cur = paste(scene.ground, jittered, x0, y0)
     prev, cur = scene.frames(ground_prev, ground_cur)
     result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
@@ -214,7 +216,9 @@ def appearing(rects, size_wh=(W, H)):
 
 
 def test_area_and_aspect_limits():
-    cfg = MotionConfig(blur_px=0, close_iterations=0, min_blob_area_px=30, max_blob_area_px=3000, max_aspect=3.0)
+    cfg = MotionConfig(
+        blur_px=0, close_iterations=0, min_blob_area_px=30, max_blob_area_px=3000, max_aspect=3.0
+    )
     rects = [
         (10, 10, 4, 4),  # 16 px: too small
         (60, 10, 12, 12),  # kept
