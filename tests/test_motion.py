@@ -139,6 +139,15 @@ def test_static_object_painted_on_ground_is_not_detected():
     assert len(result.detections) == 0, result.detections.xyxy
 
 
+def test_object_holding_still_in_the_image_moves_relative_to_the_ground():
+    """A chase target matching the camera's motion: image flow 0, flow relative to the ground not."""
+    prev, cur = Scene(pan_xy=(3.0, -2.0)).frames()
+    prev, cur = paste(prev, MOVER, 140, 100), paste(cur, MOVER, 140, 100)
+    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
+    assert len(result.detections) == 1, result.candidates.xyxy
+    assert iou(result.detections.xyxy[0], (140, 100, 176, 136)) > 0.5
+
+
 def test_camera_pan_alone_leaves_no_border_blobs():
     prev, cur = Scene(pan_xy=(12.0, 7.0)).frames()
     result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
@@ -279,6 +288,22 @@ def test_local_crop_detections_in_full_frame_coordinates():
     assert iou(result.detections.xyxy[0], truth) > 0.5, result.detections.xyxy
     assert result.detections.module[0] == "LMD"
     assert all(iou(c, truth) > 0.5 for c in result.candidates.xyxy)
+
+
+def test_full_frame_homography_reused_for_a_crop():
+    prev, cur, truth = mover_scene()
+    full = estimate_homography(prev, cur, MotionConfig())
+    x0, y0 = 90, 60
+    crop = (slice(y0, y0 + 150), slice(x0, x0 + 150))
+    local = full.for_crop((x0, y0))
+    point_crop = np.array([[[20.0, 30.0]]])
+    np.testing.assert_allclose(
+        cv2.perspectiveTransform(point_crop, local.matrix) + [x0, y0],
+        cv2.perspectiveTransform(point_crop + [x0, y0], full.matrix),
+        atol=1e-9,
+    )
+    result = MotionDetector(MotionConfig(), "LMD").detect(prev[crop], cur[crop], (x0, y0), homography=local)
+    assert len(result.detections) == 1 and iou(result.detections.xyxy[0], truth) > 0.5
 
 
 def test_given_homography_is_used_as_is():

@@ -55,6 +55,20 @@ class HomographyEstimate:
     def identity(cls, tracked: int = 0, mean_shift_px: float = 0.0) -> "HomographyEstimate":
         return cls(np.eye(3), int(tracked), 0, float(mean_shift_px), False)
 
+    def for_crop(self, offset_xy: Tuple[float, float]) -> "HomographyEstimate":
+        """The same camera motion in the pixels of a crop at ``offset_xy`` of both frames.
+
+        Lets the local motion detector reuse the full-frame estimate (which the search region
+        needs anyway) instead of tracking its own grid: H_crop = T(-offset) . H . T(offset).
+        """
+        dx, dy = float(offset_xy[0]), float(offset_xy[1])
+        to_full = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+        to_crop = np.array([[1.0, 0.0, -dx], [0.0, 1.0, -dy], [0.0, 0.0, 1.0]])
+        matrix = to_crop @ self.matrix @ to_full
+        return HomographyEstimate(
+            matrix / matrix[2, 2], self.tracked, self.inliers, self.mean_shift_px, self.ok
+        )
+
 
 @dataclass(frozen=True)
 class MotionResult:
@@ -243,8 +257,8 @@ class MotionDetector:
 
         # prev warped into cur's pixels; where the warp has no source pixel, cur itself shows
         # through (BORDER_TRANSPARENT), so the invalidated border differences to exactly 0.
-        aligned = cur_grey.copy()
         if homography.ok:
+            aligned = cur_grey.copy()
             cv2.warpPerspective(
                 prev_grey,
                 homography.matrix,
