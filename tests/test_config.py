@@ -50,7 +50,8 @@ def test_paper_parameters_defaults():
     assert c.global_.appearance.confidence == 0.5  # T0
     assert c.local.appearance.confidence == 0.1  # T1
     m = c.global_.motion
-    assert (m.t2, m.angle_spread_max, m.speed_spread_max, m.min_speed_px) == (5.0, 0.8, 0.8, 1.0)  # T2-T5
+    # T3 is a circular spread (1 - R), not the paper's variance in rad^2: 0.8 rad^2 ~ 0.33 (see motion.py)
+    assert (m.t2, m.angle_spread_max, m.speed_spread_max, m.min_speed_px) == (5.0, 0.33, 0.8, 1.0)  # T2-T5
     assert m.merge_distance_px == 15.0 and m.grid_wh == (30, 20) and m.min_blob_area_px == 30
     assert c.search_region.side_px == 300 and c.search_region.growth_px_per_miss == 4.0
     assert c.switcher.max_local_misses == 30
