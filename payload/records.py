@@ -6,11 +6,10 @@ GAD, GMD, LAD, LMD. A frame without detections has no row.
 """
 
 import csv
-import io
 import logging
 import math
 import os
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, TextIO
 
 import numpy as np
 
@@ -30,7 +29,7 @@ class DetectionsCsvWriter:
         parent = os.path.dirname(os.path.abspath(path))
         try:
             os.makedirs(parent, exist_ok=True)
-            self._file = io.open(path, "w", newline="", encoding="utf-8")  # type: Optional[io.TextIOBase]
+            self._file: Optional[TextIO] = open(path, "w", newline="", encoding="utf-8")
         except OSError as exc:
             raise DataError("%s: cannot write detections CSV: %s" % (path, exc.strerror or exc)) from None
         self._csv = csv.writer(self._file, lineterminator="\n")
@@ -78,10 +77,10 @@ def _number(path: str, line: int, name: str, text: str) -> float:
 def read_detections_csv(path: str) -> Dict[int, Detections]:
     """Frame index -> Detections of that frame (frames without rows are absent)."""
     try:
-        handle = io.open(path, "r", newline="", encoding="utf-8")
+        handle = open(path, newline="", encoding="utf-8")
     except OSError as exc:
         raise DataError("%s: cannot read detections CSV: %s" % (path, exc.strerror or exc)) from None
-    rows = {}  # type: Dict[int, List[List]]
+    rows: Dict[int, List[list]] = {}
     with handle:
         reader = csv.reader(handle)
         try:
@@ -114,7 +113,7 @@ def read_detections_csv(path: str) -> Dict[int, Detections]:
             raise DataError("%s:%d: %s" % (path, reader.line_num, exc)) from None
         except UnicodeDecodeError:
             raise DataError("%s: not a UTF-8 text file" % path) from None
-    out = {}  # type: Dict[int, Detections]
+    out: Dict[int, Detections] = {}
     for frame in sorted(rows):
         xywh = np.array([r[:4] for r in rows[frame]], np.float32)
         out[frame] = Detections.from_xywh(xywh, [r[4] for r in rows[frame]], [r[5] for r in rows[frame]])
