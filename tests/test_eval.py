@@ -1,3 +1,4 @@
+import importlib.util
 import json
 import math
 import os
@@ -344,12 +345,14 @@ def test_clips_with_labels_found_beside_and_scored_with_a_real_video(halmstad_di
     assert score.recall == pytest.approx(even_gt / all_gt)
 
 
+@pytest.mark.slow
 def test_split_runs_glad_end_to_end(halmstad_dir, capsys):
-    pytest.importorskip("payload.detect_cmd", reason="payload.detect_cmd (run_detect) not in this tree")
-    try:
-        rc = main(["eval", "--split", "val", "--limit", "2", "--no-progress"])
-    except Exception as exc:  # pragma: no cover - a crash here is a failure with the reason shown
-        pytest.fail("eval --split crashed: %r" % exc)
+    # Skip only where the detect command does not exist yet; once it does, any failure to import
+    # or run it (a missing module, a missing model) is a real failure of `eval --split`.
+    if importlib.util.find_spec("payload.detect_cmd") is None:
+        pytest.skip("payload.detect_cmd (run_detect) not in this tree")
+    rc = main(["eval", "--split", "val", "--limit", "2", "--no-progress"])
     out = capsys.readouterr()
     assert rc == 0, out.err
-    assert "POOLED" in out.out
+    rows = [line.split() for line in out.out.splitlines() if line.startswith(("V_DRONE", "POOLED"))]
+    assert len(rows) == 6 and all(row[1] == "2" for row in rows[:5])
