@@ -81,10 +81,10 @@ def _collect(boxes: Dict[int, List[List[float]]]) -> Dict[int, np.ndarray]:
     }
 
 
-def _warn_no_class(path: str, seen: Iterable[str], classes: Optional[Sequence[str]]) -> None:
+def _warn_no_class(path: str, seen: Iterable[str], classes: Optional[Sequence[str]], level: int) -> None:
     seen = sorted(set(seen))
     if seen and classes is not None:
-        log.warning(
+        log.log(level,
             "labels path=%s counted_classes=%s seen_classes=%s: no object of a counted class, clip has no ground truth",
             path, ",".join(classes), ",".join(seen),
         )
@@ -114,7 +114,7 @@ def _load_halmstad(path: str, classes: Optional[Sequence[str]]) -> Dict[int, np.
         if wanted is None or name in wanted:
             rows.append([x - 1.0, y - 1.0, x - 1.0 + w, y - 1.0 + h])
     if not any(boxes.values()):
-        _warn_no_class(path, seen, classes)
+        _warn_no_class(path, seen, classes, logging.INFO)  # a negative clip (birds, aircraft)
     return _collect(boxes)
 
 
@@ -165,7 +165,7 @@ def _load_voc(folder: str, classes: Optional[Sequence[str]]) -> Dict[int, np.nda
                 raise DataError("%s: object %r: xmax/ymax (%g, %g) below xmin/ymin (%g, %g)" % (path, label, xmax, ymax, xmin, ymin))
             rows.append([xmin - 1.0, ymin - 1.0, xmax, ymax])
     if not any(boxes.values()):
-        _warn_no_class(folder, seen, classes)
+        _warn_no_class(folder, seen, classes, logging.WARNING)  # likely a class-name mismatch
     return _collect(boxes)
 
 
