@@ -22,7 +22,7 @@ from payload.capture.base import EndOfStream, FrameSource
 from payload.config import Config, load_config, restart_required
 from payload.detect.pipeline import Glad, GladResult
 from payload.errors import ConfigError
-from payload.geometry import CameraModel, bearing_for
+from payload.geometry import CameraModel, bearing_for, mount_from_config
 from payload.records import DetectionsCsvWriter
 from payload.sdnotify import Notifier
 from payload.types import Bearing, Frame
@@ -45,14 +45,14 @@ class DecisionsCsvWriter:
 
     FIELDS = ["frame", "t_capture_ns", "t_wall_ns", "mode", "state", "module", "score", "x", "y", "w", "h",
               "region_x", "region_y", "region_w", "region_h", "az_body_rad", "el_body_rad", "az_level_rad",
-              "el_level_rad", "sent"]
+              "el_level_rad", "messages_sent"]
 
     def __init__(self, path: str) -> None:
         self._fh = open(path, "w", newline="", encoding="utf-8")
         self._csv = csv.writer(self._fh)
         self._csv.writerow(self.FIELDS)
 
-    def write(self, frame: Frame, result: GladResult, bearing: Optional[Bearing], sent: bool) -> None:
+    def write(self, frame: Frame, result: GladResult, bearing: Optional[Bearing], sent: int) -> None:
         t = result.target
         box = [""] * 4 if t is None else ["%.1f" % t.xyxy[0], "%.1f" % t.xyxy[1],
                                           "%.1f" % (t.xyxy[2] - t.xyxy[0]), "%.1f" % (t.xyxy[3] - t.xyxy[1])]
@@ -87,6 +87,8 @@ class Service:
         self._reload = threading.Event()
         self._ready_sent = False
         self._camera: Optional[CameraModel] = None
+        self._camera_wh = (0, 0)
+        self._mount = None
         self.link = None
         self.publisher = None
         self.source: Optional[FrameSource] = None
@@ -180,7 +182,7 @@ class Service:
         try:
             result = self.glad.process(frame)
             bearing = self._bearing(frame, result)
-            sent = False
+            sent = 0
             if self.publisher is not None:
                 sent = self.publisher.publish(result.target, bearing, frame.size_wh)
             if self._detections_csv is not None:
@@ -201,10 +203,12 @@ class Service:
     def _bearing(self, frame: Frame, result: GladResult) -> Optional[Bearing]:
         if result.target is None:
             return None
-        if self._camera is None or self._camera.image_wh != frame.size_wh:
+        if self._camera is None or self._camera_wh != frame.size_wh:
             self._camera = CameraModel.from_config(self.cfg.camera, frame.size_wh)
+            self._camera_wh = frame.size_wh
+            self._mount = mount_from_config(self.cfg.camera.mount)
         attitude = self.link.attitude_at(frame.t_capture_ns) if self.link is not None else None
-        return bearing_for(result.target, self._camera, attitude)
+        return bearing_for(result.target, self._camera, self._mount, attitude)
 
     def _watchdog(self) -> None:
         interval = self.notifier.watchdog_interval_s
@@ -268,7 +272,7 @@ class Service:
             log.warning("reload: these changes need a restart and are not applied yet: %s", ", ".join(pending))
         self.glad.update_config(new.detector)
         if self.publisher is not None:
-            self.publisher.update_config(new.mavlink.outputs)
+            self.publisher.cfg = new.mavlink.outputs
         logging.getLogger().setLevel(new.logging.level)
         self._camera = None  # camera intrinsics/mount may have changed
         self.cfg = new
