@@ -12,9 +12,11 @@ whose appsink is not its last element must carry those caps itself.
 
 Liveness: a pipeline is live when going to PAUSED answers NO_PREROLL (a camera, or
 ``videotestsrc is-live=true``); through OpenCV we guess it from the source element's name.
-A live pipeline is read by a LiveReader thread (newest frame wins; EOS or an error is a lost
-camera and is reconnected with back-off). A finite one is read frame by frame and ends with
-EndOfStream. ``live=True/False`` overrides the detection.
+A live pipeline is read by a LiveReader thread (newest frame wins, stamped with now_ns() at
+grab; EOS or an error is a lost camera and is reconnected with back-off). A finite one is read
+frame by frame, stamped on its own timeline (open time + buffer PTS), and ends with
+EndOfStream. ``live=True/False`` overrides the detection. Unless the pipeline sets ``sync=``
+itself, appsink gets ``sync=false``: frames are handed over as soon as they exist.
 """
 
 import logging
@@ -36,6 +38,7 @@ log = logging.getLogger(__name__)
 _BGR_CAPS = "video/x-raw,format=BGR"
 _HAS_BGR = re.compile(r"format\s*=\s*(\(string\))?BGR(?![A-Za-z0-9])")
 _FINAL_APPSINK = re.compile(r"!\s*(appsink\b[^!]*)$")
+_SYNC_SET = re.compile(r"\bsync\s*=")
 _LIVE_SOURCES = re.compile(r"\b(v4l2src|nvarguscamerasrc|nvv4l2camerasrc|libcamerasrc|rtspsrc|udpsrc|souphttpsrc|is-live\s*=\s*(true|1))\b")
 
 _gst_lock = threading.Lock()
@@ -100,6 +103,7 @@ class _GiPipeline(Grabber):
         self._sink = self._find_appsink()
         self._bus = self._pipeline.get_bus()
         self.live = False
+        self.last_pts_ns = None  # type: Optional[int]
         try:
             self._start(open_timeout_s)
         except SourceError:
@@ -158,6 +162,10 @@ class _GiPipeline(Grabber):
         # Newest frame wins for cameras; a recording must not lose frames (appsink then pushes back).
         self._sink.set_property("drop", self.live)
         self._sink.set_property("max-buffers", 1 if self.live else 4)
+        if not _SYNC_SET.search(self.text):
+            # Hand frames over as soon as they exist: a recording is read as fast as it is consumed
+            # (like VideoFileSource), a camera without waiting for the pipeline clock.
+            self._sink.set_property("sync", False)
         ret = self._pipeline.set_state(Gst.State.PLAYING)
         if ret == Gst.StateChangeReturn.FAILURE:
             raise self._fail("did not reach PLAYING")
@@ -175,6 +183,8 @@ class _GiPipeline(Grabber):
             if self._sink.is_eos():
                 raise EndOfStream()
             return None
+        pts = sample.get_buffer().pts
+        self.last_pts_ns = None if pts == self._Gst.CLOCK_TIME_NONE else int(pts)
         return self._to_bgr(sample)
 
     def _to_bgr(self, sample) -> np.ndarray:
@@ -256,6 +266,7 @@ class GStreamerSource(FrameSource):
         self._open_timeout_s = open_timeout_s
         self._reader = LiveReader(self._connect, retry or Retry(), self.stats, name=self.name, stall_s=stall_s)
         self._direct = None  # type: Optional[Grabber]
+        self._t0 = (0, 0)
         self._opened = False
         self._index = 0
 
@@ -275,6 +286,7 @@ class GStreamerSource(FrameSource):
             self._reader.start(grabber)
         else:
             self._direct = grabber
+            self._t0 = now_ns()
             self.stats.connected = True
         self._opened = True
 
@@ -289,7 +301,11 @@ class GStreamerSource(FrameSource):
             raise SourceError(str(exc)) from None
         if image is None:
             return None
-        t_capture_ns, t_wall_ns = now_ns()
+        pts_ns = getattr(self._direct, "last_pts_ns", None)
+        if pts_ns is not None:  # a recording: its own timeline, as VideoFileSource does
+            t_capture_ns, t_wall_ns = self._t0[0] + pts_ns, self._t0[1] + pts_ns
+        else:
+            t_capture_ns, t_wall_ns = now_ns()
         frame = Frame(image=image, index=self._index, t_capture_ns=t_capture_ns, t_wall_ns=t_wall_ns)
         self._index += 1
         self.stats.frames += 1
