@@ -230,6 +230,21 @@ def test_live_pipeline_that_ends_is_a_lost_camera_and_is_reopened(gst, caplog):
     assert all(r.levelno == logging.WARNING for r in losses)
 
 
+def test_error_in_a_live_pipeline_is_a_loss_and_is_reconnected(gst, caplog):
+    caplog.set_level(logging.INFO, logger="payload.capture")
+    pipeline = _live_pipeline().replace(" ! appsink", " ! identity error-after=10 ! appsink")
+    src = GStreamerSource(pipeline, retry=Retry(initial_s=0.2, max_s=1.0), backend="gi")
+    with src:
+        deadline = time.monotonic() + 3.0
+        while src.stats.reconnects < 1 and time.monotonic() < deadline:
+            src.read(0.05)
+        assert src.stats.reconnects >= 1
+        assert src.read(1.0) is not None  # frames flow again after the reconnect
+    lost = [r.getMessage() for r in caplog.records if r.getMessage().startswith("camera lost")]
+    assert lost and "identity" in lost[0] and "Failed after iterations" in lost[0]
+    assert ".c(" not in lost[0] and "\n" not in lost[0]
+
+
 def test_reconnect_backs_off_exponentially_until_the_camera_returns(gst, clip20, tmp_path, caplog):
     caplog.set_level(logging.DEBUG, logger="payload.capture")
     camera = tmp_path / "camera.mp4"

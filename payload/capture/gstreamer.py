@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 _BGR_CAPS = "video/x-raw,format=BGR"
 _HAS_BGR = re.compile(r"format\s*=\s*(\(string\))?BGR(?![A-Za-z0-9])")
 _FINAL_APPSINK = re.compile(r"!\s*(appsink\b[^!]*)$")
+_CODE_LOCATION = re.compile(r"\.c\(\d+\)")
 _SYNC_SET = re.compile(r"\bsync\s*=")
 _LIVE_SOURCES = re.compile(r"\b(v4l2src|nvarguscamerasrc|nvv4l2camerasrc|libcamerasrc|rtspsrc|udpsrc|souphttpsrc|is-live\s*=\s*(true|1))\b")
 
@@ -136,7 +137,9 @@ class _GiPipeline(Grabber):
         if msg is None:
             return None
         err, debug = msg.parse_error()
-        detail = (debug or "").split(":\n")[-1] if debug else ""
+        detail = (debug or "").split("\n")[-1].strip()
+        if _CODE_LOCATION.search(detail):  # "../gstfoo.c(123): func (): /GstPipeline:..." helps no operator
+            detail = ""
         source = msg.src.get_name() if msg.src is not None else "pipeline"
         return _one_line("%s: %s%s" % (source, err.message, " (%s)" % detail if detail else ""))
 
