@@ -3,7 +3,8 @@
 # PyGObject's build deps, systemd for `systemd-analyze verify`. Skips what is already there.
 set -euo pipefail
 pkgs=(gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-good gstreamer1.0-libav
-      libgirepository1.0-dev libcairo2-dev pkg-config python3-dev systemd)
+      gir1.2-gstreamer-1.0 gir1.2-gst-plugins-base-1.0 libgirepository1.0-dev libcairo2-dev pkg-config
+      python3-dev systemd)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
