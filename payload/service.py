@@ -162,7 +162,7 @@ class Service:
                     break
                 if frame is not None:
                     self._step(frame)
-                    if self.max_frames and self.stats.frames + self.stats.skipped >= self.max_frames:
+                    if self.max_frames and self.stats.frames >= self.max_frames:
                         break
                 self._maybe_summary()
         finally:
