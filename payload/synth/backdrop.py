@@ -166,12 +166,12 @@ class VideoBackdrop:
 
     def __init__(self, path: str, lens: Lens, limits: MotionLimits, scale: float = 1.0):
         if not os.path.isfile(path):
-            raise SourceError("synthetic background %s: file not found (expected a video file)" % path)
+            raise SourceError(f"synthetic background {path}: file not found (expected a video file)")
         self.path = path
         self.cap = cv2.VideoCapture(path)
         ok, first = self.cap.read()
         if not ok:
-            raise SourceError("synthetic background %s: cannot read frames (expected a video OpenCV can decode)" % path)
+            raise SourceError(f"synthetic background {path}: cannot read frames (expected a video OpenCV can decode)")
         if "DRONE" in os.path.basename(path).upper():
             log.warning("background=%s contains a real drone that is NOT labelled; prefer V_BIRD_*/V_AIRPLANE_*", path)
         self.lens = lens

@@ -15,6 +15,7 @@ from typing import Iterator, Optional, Tuple
 import cv2
 import numpy as np
 
+from payload.errors import ConfigError
 from payload.synth import clutter as clutter_mod
 from payload.synth.backdrop import Backdrop, VideoBackdrop
 from payload.synth.camera import CameraPath, Lens, MotionLimits, direction
@@ -115,7 +116,7 @@ class Scene:
                  noise: float = 1.0, shake: float = 1.0, jump_rate_hz: float = 0.08, hfov_deg: float = 60.0,
                  render_target: bool = True):
         if not (0 < target_px[0] <= target_px[1]):
-            raise ValueError("target_px %r: expected 0 < min <= max" % (tuple(target_px),))
+            raise ConfigError([f"synthetic.target_px={list(target_px)}: expected 0 < min <= max"])
         self.seed, self.width, self.height, self.fps, self.frames = seed, width, height, fps, frames
         self.target_px = (float(target_px[0]), float(target_px[1]))
         self.background = background
