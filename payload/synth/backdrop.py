@@ -144,10 +144,10 @@ class Backdrop:
         ground = cv2.blendLinear(ground, haze_img, 1 - haze, haze)
 
         # Far hills: a ragged profile just above the horizon, hazy blue-green.
-        n_az = 720
+        n_az = 1440
         profile = np.abs(fbm(rng, (1, n_az), 40.0, 4, stretch_x=1.0)[0]) * math.radians(1.6) + math.radians(0.1)
-        idx = ((az_f + math.pi) / (2 * math.pi) * (n_az - 1)).astype(np.int32)
-        hill = (elev_f >= 0) & (elev_f < profile[np.clip(idx, 0, n_az - 1)])
+        hill_top = np.interp(az_f, np.linspace(-math.pi, math.pi, n_az), profile).astype(np.float32)
+        hill = (elev_f >= 0) & (elev_f < hill_top)
         hill_colour = (np.array([80, 95, 80], np.float32) * 0.5 + horizon * 0.5).astype(np.uint8)
 
         out = sky

@@ -77,10 +77,14 @@ def _building(rng: np.random.Generator, base: np.ndarray) -> _Item:
 
 
 class Clutter:
-    """``count`` near objects kept around the camera; those left behind are placed anew ahead."""
+    """``count`` near objects kept around the camera; those left behind are placed anew ahead.
 
-    def __init__(self, rng: np.random.Generator, lens: Lens, count: int):
-        self.rng, self.lens, self.count = rng, lens, count
+    ``buildings=False`` keeps to trees and poles (over a real video, whose ground level is
+    unknown, a building would float; a tree or pole usually reaches below the frame).
+    """
+
+    def __init__(self, rng: np.random.Generator, lens: Lens, count: int, buildings: bool = True):
+        self.rng, self.lens, self.count, self.buildings = rng, lens, count, buildings
         self.items: List[Optional[_Item]] = [None] * count
         self.hidden_frames = [0] * count
 
@@ -95,10 +99,12 @@ class Clutter:
         base = pose.position_m + np.array([dist * math.sin(yaw), 0.0, dist * math.cos(yaw)])
         base[1] = CLUTTER_GROUND_Y_M
         kind = rng.random()
-        if kind < 0.5:
+        if kind < 0.55:
             return _tree(rng, base)
-        if kind < 0.75:
+        if kind < 0.85 or not self.buildings:
             return _pole(rng, base)
+        base = pose.position_m + (base - pose.position_m) * 1.8  # buildings stand farther off
+        base[1] = CLUTTER_GROUND_Y_M
         return _building(rng, base)
 
     def shapes(self, pose: CameraPose, first: bool) -> List[Shape]:

@@ -158,7 +158,7 @@ class Scene:
         cam = CameraPath(self._rng("camera"), lim, self.fps, shake=self.shake, jump_rate_hz=self.jump_rate_hz)
         target = _TargetPath(self._rng("target"), lim, self.fps, self.target_px)
         model = DroneModel(self._rng("model"))
-        near = clutter_mod.Clutter(self._rng("clutter"), self.lens, self.n_clutter)
+        near = clutter_mod.Clutter(self._rng("clutter"), self.lens, self.n_clutter, buildings=not self.background)
         birds = Birds(self._rng("birds"), lim, self.n_birds, self.fps)
         cars = Cars(self._rng("cars"), getattr(backdrop, "ground_to_backdrop", None), self.n_cars, self.fps)
         noise_rng = self._rng("noise")
@@ -171,7 +171,7 @@ class Scene:
         zoom_mid = math.sqrt(lim.zoom_min * lim.zoom_max)
         haze_colour = (205.0, 200.0, 195.0)
         H_prev = None
-        xy_prev = None
+        dir_prev = None
         index = 0
         while self.frames <= 0 or index < self.frames:
             target.step()
@@ -185,11 +185,14 @@ class Scene:
             cars.draw(image, H)
             birds.draw(image, self.lens, pose)
 
-            uv, depth = self.lens.project_directions(pose, direction(target.yaw, target.pitch)[None])
+            dirs = [direction(target.yaw, target.pitch)] + ([] if dir_prev is None else [dir_prev])
+            uv, depth = self.lens.project_directions(pose, np.array(dirs))
             xy = uv[0]
             span = target.span_px(pose.zoom, zoom_mid)
-            blur = np.zeros(2) if xy_prev is None else (xy - xy_prev) * EXPOSURE_FRACTION
-            xy_prev = xy
+            # Blur by the target's own motion only: the backdrop is not blurred by camera motion,
+            # so blurring the target by it would make the target stand out unnaturally.
+            blur = np.zeros(2) if dir_prev is None else (xy - uv[1]) * EXPOSURE_FRACTION
+            dir_prev = dirs[0]
             blur_len = float(np.hypot(*blur))
             if blur_len > MAX_BLUR_PX:
                 blur *= MAX_BLUR_PX / blur_len
