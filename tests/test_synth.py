@@ -38,6 +38,9 @@ def test_same_seed_same_pixels_other_seed_differs():
         if fa.target_xyxy is not None:
             assert np.array_equal(fa.target_xyxy, fb.target_xyxy)
     assert not np.array_equal(a[5].image, c[5].image)
+    # frames=0 is endless.
+    endless = iter(Scene(seed=7, width=160, height=120, frames=0))
+    assert [next(endless).index for _ in range(5)] == [0, 1, 2, 3, 4]
     # Iterating the same Scene object twice replays the same clip.
     scene = Scene(seed=7, width=W, height=H, frames=3)
     assert all(np.array_equal(x.image, y.image) for x, y in zip(scene, scene))
@@ -54,6 +57,7 @@ def test_label_box_is_tight_around_the_rendered_target(seed):
             assert not changed.any(), f"frame {f.index}: pixels changed but no label"
             continue
         boxed += 1
+        assert 0.0 < f.target_visible <= 1.0
         x1, y1, x2, y2 = f.target_xyxy.astype(int)
         assert np.array_equal(f.target_xyxy, f.target_xyxy.round()), "boxes are whole-pixel bounds"
         inside = np.zeros_like(changed)

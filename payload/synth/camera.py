@@ -95,10 +95,10 @@ class CameraPath:
     """
 
     def __init__(self, rng: np.random.Generator, limits: MotionLimits, fps: float, shake: float = 1.0,
-                 jump_rate_hz: float = 0.08, speed_mps: Tuple[float, float] = (2.0, 10.0)):
+                 jump_rate_hz: float = 0.1, speed_mps: Tuple[float, float] = (2.0, 10.0)):
         self.rng, self.lim, self.dt_s = rng, limits, 1.0 / fps
         half = limits.hfov_rad / 2
-        self.off_yaw = _OU(rng, 0.0, 0.3 * half, 3.0, rng.normal(0.0, 0.2 * half))
+        self.off_yaw = _OU(rng, 0.0, 0.4 * half, 3.0, rng.normal(0.0, 0.2 * half))
         self.off_pitch = _OU(rng, 0.0, 0.2 * half, 3.0, rng.normal(0.0, 0.1 * half))
         self.roll = _OU(rng, 0.0, 0.4 * limits.roll_rad, 2.5, rng.normal(0.0, 0.3 * limits.roll_rad))
         lz0, lz1 = math.log(limits.zoom_min), math.log(limits.zoom_max)

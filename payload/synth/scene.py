@@ -38,6 +38,8 @@ class SceneFrame:
     frame -> this frame (identity for index 0). ``camera_rpy_rad``: the camera's roll
     (clockwise in the image > 0), pitch (up > 0) and yaw (right > 0) in the level world frame.
     ``target_span_px``: the drone's rotor-tip-to-rotor-tip size in this frame, visible or not.
+    ``target_visible``: the share of the drone's pixels (alpha-weighted) that are in the frame and
+    not hidden by clutter (1.0 = fully visible, 0.0 = out of view or hidden).
     """
 
     image: np.ndarray
@@ -46,6 +48,7 @@ class SceneFrame:
     homography: np.ndarray
     camera_rpy_rad: Tuple[float, float, float]
     target_span_px: Optional[float] = None
+    target_visible: float = 0.0
 
 
 class _TargetPath:
@@ -113,7 +116,7 @@ class Scene:
     def __init__(self, seed: int = 1, width: int = 1920, height: int = 1080, fps: float = 30.0,
                  frames: int = 300, target_px: Tuple[float, float] = (4.0, 80.0),
                  background: Optional[str] = None, clutter: int = 4, birds: int = 2, cars: int = 3,
-                 noise: float = 1.0, shake: float = 1.0, jump_rate_hz: float = 0.08, hfov_deg: float = 60.0,
+                 noise: float = 1.0, shake: float = 1.0, jump_rate_hz: float = 0.1, hfov_deg: float = 60.0,
                  render_target: bool = True):
         if not (0 < target_px[0] <= target_px[1]):
             raise ConfigError([f"synthetic.target_px={list(target_px)}: expected 0 < min <= max"])
@@ -197,7 +200,7 @@ class Scene:
             if blur_len > MAX_BLUR_PX:
                 blur *= MAX_BLUR_PX / blur_len
             shapes = near.shapes(pose, first=index == 0)
-            box = None
+            box, seen = None, 0.0
             reach = span + MAX_BLUR_PX
             if depth[0] > 0 and -reach < xy[0] < w + reach and -reach < xy[1] < h + reach:
                 tilt = (0.25 * target.vel[1] / 0.05, -0.25 * target.vel[0] / 0.05) if target.flying else (0.0, 0.0)
@@ -205,7 +208,7 @@ class Scene:
                 haze = 0.35 * (1.0 - (span - self.target_px[0]) / max(self.target_px[1] - self.target_px[0], 1e-6))
                 sprite = model.render(span, (float(xy[0]), float(xy[1])), target.heading, target.view_elev, tilt,
                                       (float(blur[0]), float(blur[1])), haze=haze, haze_colour=haze_colour)
-                box = self._composite(image, sprite, shapes)
+                box, seen = self._composite(image, sprite, shapes)
             clutter_mod.draw(image, shapes)
             if sigma > 0:
                 ox, oy = noise_rng.integers(0, margin, 2)
@@ -213,18 +216,19 @@ class Scene:
                 cv2.subtract(image, noise_neg[oy:oy + h, ox:ox + w], dst=image)
             yield SceneFrame(
                 image=image, index=index, target_xyxy=box, homography=step_h,
-                camera_rpy_rad=(pose.roll_rad, pose.pitch_rad, pose.yaw_rad), target_span_px=span,
+                camera_rpy_rad=(pose.roll_rad, pose.pitch_rad, pose.yaw_rad), target_span_px=span, target_visible=seen,
             )
             index += 1
 
-    def _composite(self, image: np.ndarray, sprite, shapes) -> Optional[np.ndarray]:
-        """Blend the sprite in (if rendering the target); return the box of its visible pixels."""
+    def _composite(self, image: np.ndarray, sprite, shapes) -> Tuple[Optional[np.ndarray], float]:
+        """Blend the sprite in (if rendering the target); return the box of its visible pixels
+        and the visible share of its alpha."""
         h, w = image.shape[:2]
         sh, sw = sprite.alpha.shape
         x0, y0 = max(sprite.x0, 0), max(sprite.y0, 0)
         x1, y1 = min(sprite.x0 + sw, w), min(sprite.y0 + sh, h)
         if x1 <= x0 or y1 <= y0:
-            return None
+            return None, 0.0
         a = sprite.alpha[y0 - sprite.y0:y1 - sprite.y0, x0 - sprite.x0:x1 - sprite.x0]
         p = sprite.colour[y0 - sprite.y0:y1 - sprite.y0, x0 - sprite.x0:x1 - sprite.x0]
         if self.render_target:
@@ -234,5 +238,6 @@ class Scene:
         visible = (a > 0) & (covered == 0)
         ys, xs = np.nonzero(visible)
         if len(xs) == 0:
-            return None
-        return np.array([x0 + xs.min(), y0 + ys.min(), x0 + xs.max() + 1, y0 + ys.max() + 1], np.float32)
+            return None, 0.0
+        seen = float(a[visible].sum() / max(float(sprite.alpha.sum()), 1e-6))
+        return np.array([x0 + xs.min(), y0 + ys.min(), x0 + xs.max() + 1, y0 + ys.max() + 1], np.float32), seen
