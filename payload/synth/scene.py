@@ -239,5 +239,5 @@ class Scene:
         ys, xs = np.nonzero(visible)
         if len(xs) == 0:
             return None, 0.0
-        seen = float(a[visible].sum() / max(float(sprite.alpha.sum()), 1e-6))
+        seen = min(1.0, float(a[visible].sum()) / max(float(sprite.alpha.sum()), 1e-6))
         return np.array([x0 + xs.min(), y0 + ys.min(), x0 + xs.max() + 1, y0 + ys.max() + 1], np.float32), seen
