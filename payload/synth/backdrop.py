@@ -135,7 +135,9 @@ class Backdrop:
         dist_m = BACKDROP_ALTITUDE_M / np.sin(below)
         w_far = np.clip((dist_m - 150.0) / 400.0, 0, 1).astype(np.float32)
         ground = cv2.blendLinear(near, far, 1 - w_far, w_far)
-        grain = rng.normal(0, 6, (h, w)).astype(np.float32) * (1 - w_far)
+        # Near ground is magnified far beyond the texture's metre pixels: add clods, grass tufts
+        # and shadows at backdrop-pixel scale so that it has trackable texture up close.
+        grain = (rng.normal(0, 5, (h, w)).astype(np.float32) + 18.0 * fbm(rng, (h, w), 10.0, 3)) * (1 - w_far)
         ground = np.clip(ground.astype(np.float32) + grain[..., None], 0, 255).astype(np.uint8)
         haze_colour = horizon * 0.95
         haze = (1 - np.exp(-dist_m / rng.uniform(1200, 3000))).astype(np.float32)
