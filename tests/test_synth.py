@@ -176,18 +176,40 @@ def test_bad_inputs_are_one_line_errors(tmp_path):
         next(iter(Scene(width=160, height=120, frames=2, background=str(tmp_path / "none.mp4"))))
 
 
+def test_video_background_is_played_frame_by_frame(tmp_path):
+    path = str(tmp_path / "bg.mp4")
+    colours = [(20 * k + 10, 100, 200 - 15 * k) for k in range(8)]
+    writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (160, 128))
+    for c in colours:
+        writer.write(np.full((128, 160, 3), c, np.uint8))
+    writer.release()
+    frames = _frames(8, seed=1, width=320, height=240, background=path, clutter=0, birds=0, noise=0.0)
+    for f, c in zip(frames, colours):
+        assert np.abs(np.median(f.image.reshape(-1, 3), axis=0) - c).max() <= 8, (f.index, c)
+
+
+def test_video_background_moves_by_the_homography(tmp_path):
+    path = str(tmp_path / "still.mp4")
+    texture = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 255, (128, 160, 3), dtype=np.uint8), (0, 0), 1.5)
+    writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (160, 128))
+    for _ in range(10):
+        writer.write(texture)
+    writer.release()
+    frames = _frames(10, seed=1, background=path, clutter=0, birds=0, noise=0.0)
+    core = (slice(40, H - 40), slice(40, W - 40))
+    errors, still = [], []
+    for prev, cur in zip(frames, frames[1:]):
+        warped = cv2.warpPerspective(prev.image, cur.homography, (W, H))
+        errors.append(np.mean(np.abs(warped[core].astype(int) - cur.image[core].astype(int))))
+        still.append(np.mean(np.abs(prev.image[core].astype(int) - cur.image[core].astype(int))))
+    assert max(errors) < 0.5 and np.mean(errors) < 0.3 * np.mean(still), (errors, still)
+
+
 def test_real_video_background(halmstad_dir):
     path = os.path.join(halmstad_dir, "visible", "V_BIRD_001.mp4")
     if not os.path.isfile(path):
         pytest.skip(f"no {path}")
-    frames = _frames(10, seed=1, background=path, clutter=0, birds=0, noise=0.0)
-    video = cv2.VideoCapture(path)
-    ok, first = video.read()
-    assert ok
-    # The backdrop is the video frame: its mean colour carries over.
-    assert np.abs(frames[0].image.mean(axis=(0, 1)) - first.mean(axis=(0, 1))).max() < 25
-    prev, cur = frames[3], frames[4]
-    warped = cv2.warpPerspective(prev.image, cur.homography, (W, H))
-    core = (slice(40, H - 40), slice(40, W - 40))
-    err = np.mean(np.abs(warped[core].astype(int) - cur.image[core].astype(int)))
-    assert err < 6.0
+    frames = _frames(10, seed=1, background=path)
+    assert all(f.image.shape == (H, W, 3) for f in frames)
+    assert frames[0].image.std() > 10  # real content, not a blank frame
+    assert sum(f.target_xyxy is not None for f in frames) >= 5

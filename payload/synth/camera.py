@@ -61,15 +61,24 @@ class CameraPose:
         return attitude(self.roll_rad, self.pitch_rad, self.yaw_rad)
 
 
-class _OU:
-    """Ornstein-Uhlenbeck process: a smooth random wander around ``mean`` with std ``std``."""
+class Wander:
+    """A random wander around ``mean`` with std ``std`` and time scale ``tau_s``.
 
-    def __init__(self, rng: np.random.Generator, mean: float, std: float, tau_s: float, x0: float):
-        self.rng, self.mean, self.std, self.tau_s, self.x = rng, mean, std, tau_s, x0
+    A plain Ornstein-Uhlenbeck process has white-noise velocity (it jitters frame to frame);
+    a low-pass of ``smooth_s`` on top makes it move like a real gimbal or airframe. With
+    ``smooth_s=0`` it stays raw (vibration).
+    """
+
+    def __init__(self, rng: np.random.Generator, mean: float, std: float, tau_s: float, x0: float,
+                 smooth_s: float = 0.5):
+        self.rng, self.mean, self.std, self.tau_s, self.smooth_s = rng, mean, std, tau_s, smooth_s
+        self.raw = self.x = x0
 
     def step(self, dt_s: float) -> float:
         a = math.exp(-dt_s / self.tau_s)
-        self.x = self.mean + a * (self.x - self.mean) + self.std * math.sqrt(1 - a * a) * self.rng.standard_normal()
+        self.raw = self.mean + a * (self.raw - self.mean) + self.std * math.sqrt(1 - a * a) * self.rng.standard_normal()
+        b = math.exp(-dt_s / self.smooth_s) if self.smooth_s > 0 else 0.0
+        self.x = b * self.x + (1 - b) * self.raw
         return self.x
 
 
@@ -98,12 +107,12 @@ class CameraPath:
                  jump_rate_hz: float = 0.1, speed_mps: Tuple[float, float] = (2.0, 10.0)):
         self.rng, self.lim, self.dt_s = rng, limits, 1.0 / fps
         half = limits.hfov_rad / 2
-        self.off_yaw = _OU(rng, 0.0, 0.4 * half, 3.0, rng.normal(0.0, 0.2 * half))
-        self.off_pitch = _OU(rng, 0.0, 0.2 * half, 3.0, rng.normal(0.0, 0.1 * half))
-        self.roll = _OU(rng, 0.0, 0.4 * limits.roll_rad, 2.5, rng.normal(0.0, 0.3 * limits.roll_rad))
+        self.off_yaw = Wander(rng, 0.0, 0.4 * half, 3.0, rng.normal(0.0, 0.2 * half))
+        self.off_pitch = Wander(rng, 0.0, 0.2 * half, 3.0, rng.normal(0.0, 0.1 * half))
+        self.roll = Wander(rng, 0.0, 0.4 * limits.roll_rad, 2.5, rng.normal(0.0, 0.3 * limits.roll_rad))
         lz0, lz1 = math.log(limits.zoom_min), math.log(limits.zoom_max)
-        self.log_zoom = _OU(rng, (lz0 + lz1) / 2, (lz1 - lz0) / 4, 5.0, rng.uniform(lz0, lz1))
-        self.shake = [_OU(rng, 0.0, shake * math.radians(0.08), 0.06, 0.0) for _ in range(3)]
+        self.log_zoom = Wander(rng, (lz0 + lz1) / 2, (lz1 - lz0) / 4, 5.0, rng.uniform(lz0, lz1))
+        self.shake = [Wander(rng, 0.0, shake * math.radians(0.08), 0.06, 0.0, smooth_s=0.0) for _ in range(3)]
         self.jump_rate_hz = jump_rate_hz
         self.aim = None  # smoothed aim point (the operator lags behind the target)
         speed = rng.uniform(*speed_mps)
@@ -119,8 +128,11 @@ class CameraPath:
         self.aim = a * self.aim + (1 - a) * np.array([aim_yaw_rad, aim_pitch_rad])
         if self.rng.random() < self.jump_rate_hz * dt:
             half = lim.hfov_rad / 2
-            self.off_yaw.x += self.rng.choice([-1.0, 1.0]) * self.rng.uniform(0.15, 0.6) * half
-            self.off_pitch.x += self.rng.normal(0.0, 0.2 * half)
+            jump_yaw = self.rng.choice([-1.0, 1.0]) * self.rng.uniform(0.15, 0.6) * half
+            jump_pitch = self.rng.normal(0.0, 0.2 * half)
+            for ou, jump in ((self.off_yaw, jump_yaw), (self.off_pitch, jump_pitch)):
+                ou.x += jump  # abrupt: past the smoothing
+                ou.raw += jump
         sy, sp, sr = (s.step(dt) for s in self.shake)
         yaw = float(np.clip(self.aim[0] + self.off_yaw.step(dt) + sy, -lim.yaw_rad, lim.yaw_rad))
         pitch = float(np.clip(self.aim[1] + self.off_pitch.step(dt) + sp, lim.pitch_min_rad, lim.pitch_max_rad))

@@ -18,7 +18,7 @@ import numpy as np
 from payload.errors import ConfigError
 from payload.synth import clutter as clutter_mod
 from payload.synth.backdrop import Backdrop, VideoBackdrop
-from payload.synth.camera import CameraPath, Lens, MotionLimits, direction
+from payload.synth.camera import CameraPath, Lens, MotionLimits, Wander, direction
 from payload.synth.distractors import Birds, Cars
 from payload.synth.drone import DroneModel
 
@@ -63,7 +63,8 @@ class _TargetPath:
         lo, hi = math.log(span_px[0]), math.log(span_px[1])
         self.span_bounds = span_px
         self.log_span_mean = rng.uniform(lo, hi)
-        self.log_span = self.log_span_mean + rng.normal(0, 0.15)
+        self.size = Wander(rng, self.log_span_mean, 0.25, 4.0, self.log_span_mean + rng.normal(0, 0.15), smooth_s=1.0)
+        self.log_span = self.size.x
         self.heading = rng.uniform(-math.pi, math.pi)
         self.view_elev = rng.uniform(-0.35, 0.45)  # looking up at / down on it
 
@@ -90,8 +91,7 @@ class _TargetPath:
         if not (lim.pitch_min_rad < self.pitch < lim.pitch_max_rad + 0.05):
             self.pitch = float(np.clip(self.pitch, lim.pitch_min_rad, lim.pitch_max_rad + 0.05))
             self.vel[1] *= -1
-        a = math.exp(-dt / 4.0)
-        self.log_span = self.log_span_mean + a * (self.log_span - self.log_span_mean) + 0.25 * math.sqrt(1 - a * a) * r.standard_normal()
+        self.log_span = self.size.step(dt)
         if self.flying and np.hypot(*self.vel) > 1e-6:
             want = math.atan2(self.vel[0], 0.3)
             self.heading += 0.05 * math.sin(want - self.heading)
