@@ -61,7 +61,7 @@ def _ground_texture(rng: np.random.Generator) -> np.ndarray:
     forest = fbm(rng, (g, g), 300.0, 3) > 0.35
     crowns = fbm(rng, (g, g), 3.0, 2)
     forest_colour = np.array([35, 65, 35], np.float32)
-    img[forest] = forest_colour * (1.0 + 0.5 * crowns[forest, None])
+    img[forest] = forest_colour * (1.0 + 0.35 * crowns[forest, None])
     for _ in range(int(rng.integers(4, 9))):
         pts = np.cumsum(rng.normal(0, 120, (8, 2)), axis=0) + rng.uniform(0, g, 2)
         cv2.polylines(img, [pts.astype(np.int32)], False, (120, 125, 128), int(rng.integers(3, 7)), cv2.LINE_AA)
