@@ -40,6 +40,14 @@ class SyntheticSceneConfig(Section):
     fps: float = Field(30.0, gt=0, le=1000)
     frames: int = Field(0, ge=0, description="Frames to render; 0 = endless.")
     background: Optional[str] = Field(None, description="Video whose frames serve as backgrounds.")
+    target_px: Tuple[float, float] = Field((4.0, 80.0), description="Target drone size range, px across.")
+
+    @model_validator(mode="after")
+    def _target_px(self):
+        lo, hi = self.target_px
+        if not (0 < lo <= hi):
+            raise ValueError(f"target_px {list(self.target_px)}: expected [min, max] with 0 < min <= max")
+        return self
 
 
 class CaptureConfig(Section):
