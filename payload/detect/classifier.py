@@ -1,0 +1,47 @@
+"""Appearance classifier: the paper's shallow CNN on 32x32 patches, MAV vs clutter.
+
+It checks motion-detector candidates: one batched inference for all candidates of a frame.
+Patches are cut by payload.detect.patches.crop_patches, the same function training uses.
+Network contract (training/net.py): input 'patches' [N, 3, 32, 32] RGB in [0, 1]; output
+[N, 2] probabilities, column 1 = drone.
+"""
+
+import logging
+
+import numpy as np
+
+from payload.config import ClassifierConfig
+from payload.detect.onnx_model import OnnxModel
+from payload.detect.patches import PATCH_PX, crop_patches, patches_to_input
+from payload.errors import ModelError
+from payload.types import Detections
+
+log = logging.getLogger(__name__)
+
+
+class AppearanceClassifier:
+    def __init__(self, model: OnnxModel, cfg: ClassifierConfig) -> None:
+        self.model = model
+        self.cfg = cfg
+        self._input_name = next(iter(model.input_shapes))
+        out = model.run({self._input_name: np.zeros((2, 3, PATCH_PX, PATCH_PX), np.float32)})[0]
+        if out.shape != (2, 2):
+            raise ModelError("%s: expected output [N,2] (clutter, drone probabilities), found %s" % (model.path, list(out.shape)))
+
+    def update_config(self, cfg: ClassifierConfig) -> None:
+        """Hot reload: the threshold."""
+        self.cfg = cfg
+
+    def probabilities(self, image_bgr: np.ndarray, dets: Detections) -> np.ndarray:
+        """Drone probability per detection [N] float32; one inference for all of them."""
+        if not len(dets):
+            return np.zeros((0,), np.float32)
+        x = patches_to_input(crop_patches(image_bgr, dets.xyxy))
+        return self.model.run({self._input_name: x})[0][:, 1].astype(np.float32)
+
+    def filter(self, image_bgr: np.ndarray, dets: Detections) -> Detections:
+        """The detections whose drone probability reaches cfg.threshold, scored by that probability."""
+        prob = self.probabilities(image_bgr, dets)
+        keep = prob >= self.cfg.threshold
+        log.debug("classifier candidates=%d kept=%d", len(dets), int(keep.sum()))
+        return Detections(dets.xyxy[keep], prob[keep], dets.module[keep])

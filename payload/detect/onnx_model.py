@@ -1,0 +1,143 @@
+"""ONNX Runtime session for one model: provider choice, input checks, warm-up. The only onnxruntime import.
+
+``backend`` maps to an ordered provider list (TensorRT -> CUDA -> CPU); providers this
+onnxruntime build does not offer are dropped with a log line, and after the session is made
+the provider ORT actually picked is logged (it falls back to CPU silently otherwise).
+TensorRT engines are cached per model hash and precision, so a restart does not rebuild
+them; the warm-up run in the constructor keeps a slow first build out of the live loop.
+"""
+
+import hashlib
+import logging
+import os
+from typing import Any, Dict, List, Optional, Tuple
+
+import numpy as np
+
+from payload.errors import BackendUnavailable, ModelError
+
+log = logging.getLogger(__name__)
+
+TRT = "TensorrtExecutionProvider"
+CUDA = "CUDAExecutionProvider"
+CPU = "CPUExecutionProvider"
+
+_CHAINS = {"tensorrt": (TRT, CUDA, CPU), "cuda": (CUDA, CPU), "cpu": (CPU,)}
+
+#: Warm-up and default spatial size for inputs whose H/W are dynamic.
+_WARMUP_HW = 64
+
+
+def _ort():
+    try:
+        import onnxruntime
+    except ImportError as exc:
+        raise BackendUnavailable("onnxruntime is not installed: pip install onnxruntime (or onnxruntime-gpu): %s" % exc) from None
+    return onnxruntime
+
+
+def providers_for(backend: str, fp16: bool, engine_cache_dir: Optional[str]) -> List:
+    """Provider list for ``backend`` (cpu | cuda | tensorrt), best first, limited to what ORT offers."""
+    if backend not in _CHAINS:
+        raise BackendUnavailable("backend %r: expected one of cpu, cuda, tensorrt" % (backend,))
+    available = set(_ort().get_available_providers())
+    out: List[Any] = []
+    for name in _CHAINS[backend]:
+        if name not in available:
+            log.warning("provider dropped provider=%s backend=%s reason=not offered by this onnxruntime build", name, backend)
+            continue
+        if name == TRT:
+            opts = {"trt_fp16_enable": bool(fp16), "trt_engine_cache_enable": engine_cache_dir is not None}
+            if engine_cache_dir is not None:
+                opts["trt_engine_cache_path"] = engine_cache_dir
+            out.append((TRT, opts))
+        else:
+            out.append(name)
+    if not out:
+        raise BackendUnavailable("backend %r: onnxruntime offers none of %s" % (backend, ", ".join(_CHAINS[backend])))
+    return out
+
+
+def _file_digest(path: str) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()[:16]
+
+
+def _describe(shape) -> str:
+    return "[%s]" % ",".join(str(d) if isinstance(d, int) else (d or "?") for d in shape)
+
+
+class OnnxModel:
+    """One inference session. ``expected_inputs`` maps each input name to its channel count (NCHW).
+
+    ``config_key`` names the config field the path came from, for error messages;
+    ``warmup_hw`` is the (H, W) the warm-up feeds to dynamic inputs: use the live input size so
+    that TensorRT builds its engine for it here and not on the first live frame.
+    """
+
+    def __init__(
+        self,
+        path: str,
+        backend: str = "cpu",
+        threads: int = 0,
+        fp16: bool = True,
+        engine_cache_dir: Optional[str] = None,
+        expected_inputs: Optional[Dict[str, int]] = None,
+        config_key: str = "model",
+        warmup_hw: Optional[Tuple[int, int]] = None,
+    ) -> None:
+        expected_inputs = {"images": 3} if expected_inputs is None else dict(expected_inputs)
+        self.path = path
+        where = "%s: %s" % (config_key, path)
+        if not os.path.isfile(path):
+            raise ModelError("%s: no such model file" % where)
+        ort = _ort()
+        cache_dir = None
+        if engine_cache_dir is not None:
+            # keyed by model content and precision; ORT checks the TensorRT version in its engine names
+            cache_dir = os.path.join(engine_cache_dir, "%s-%s" % (_file_digest(path), "fp16" if fp16 else "fp32"))
+            os.makedirs(cache_dir, exist_ok=True)
+        providers = providers_for(backend, fp16, cache_dir)
+        opts = ort.SessionOptions()
+        if threads:
+            opts.intra_op_num_threads = int(threads)
+        opts.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(path, sess_options=opts, providers=providers)
+        except Exception as exc:  # ORT raises its own exception types for unreadable/invalid graphs
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ModelError("%s: not a usable ONNX model: %s" % (where, first[:200])) from None
+        inputs = {i.name: i.shape for i in self.session.get_inputs()}
+        for name, channels in expected_inputs.items():
+            shape = inputs.get(name)
+            ok = shape is not None and len(shape) == 4 and (not isinstance(shape[1], int) or shape[1] == channels)
+            if not ok:
+                found = ", ".join("'%s' %s" % (n, _describe(s)) for n, s in inputs.items()) or "no inputs"
+                raise ModelError("%s: expected input '%s' [N,%d,H,W], found %s" % (where, name, channels, found))
+        self.input_shapes = {n: list(inputs[n]) for n in expected_inputs}
+        self._channels = expected_inputs
+        self.output_names = [o.name for o in self.session.get_outputs()]
+        self.providers = list(self.session.get_providers())
+        wanted = providers[0][0] if isinstance(providers[0], tuple) else providers[0]
+        log.info("model loaded path=%s provider=%s providers=%s", path, self.providers[0], ",".join(self.providers))
+        if self.providers[0] != wanted:
+            log.warning("provider fallback path=%s wanted=%s got=%s", path, wanted, self.providers[0])
+        self._warm_up(warmup_hw or (_WARMUP_HW, _WARMUP_HW))
+
+    def _warm_up(self, hw: Tuple[int, int]) -> None:
+        feeds = {}
+        for name, shape in self.input_shapes.items():
+            default = (1, self._channels[name], hw[0], hw[1])
+            dims = [d if isinstance(d, int) and d > 0 else default[i] for i, d in enumerate(shape)]
+            feeds[name] = np.zeros(dims, np.float32)
+        try:
+            self.session.run(None, feeds)
+        except Exception as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ModelError("%s: warm-up inference failed: %s" % (self.path, first[:200])) from None
+
+    def run(self, feeds: Dict[str, np.ndarray]) -> List[np.ndarray]:
+        return self.session.run(None, feeds)

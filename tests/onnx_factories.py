@@ -1,0 +1,60 @@
+"""Tiny real ONNX models built with onnx.helper, for testing the runtime without trained weights.
+
+bright_spot_detector: the detector contract (input 'images' [N,3,H,W], output 'maps'
+[N,5,H/4,W/4]); the score of a 4x4 cell is its mean brightness, kept at 3x3 local maxima,
+offset 0.5 (cell centre) and box 4x4 px: a white 4x4 square on a black 4-aligned cell comes
+back as exactly that box.
+brightness_classifier: the classifier contract (input 'patches' [N,3,32,32], output [N,2]);
+drone probability = mean brightness of the patch.
+"""
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+
+def _save(graph, path):
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return str(path)
+
+
+def bright_spot_detector(path, input_name="images", channels=3):
+    x = helper.make_tensor_value_info(input_name, TensorProto.FLOAT, ["N", channels, "H", "W"])
+    y = helper.make_tensor_value_info("maps", TensorProto.FLOAT, ["N", 5, "h", "w"])
+    consts = [
+        numpy_helper.from_array(np.array(0.0, np.float32), "zero"),
+        numpy_helper.from_array(np.array(0.5, np.float32), "half"),
+        numpy_helper.from_array(np.array(4.0, np.float32), "four"),
+    ]
+    nodes = [
+        helper.make_node("ReduceMean", [input_name], ["grey"], axes=[1], keepdims=1),
+        helper.make_node("AveragePool", ["grey"], ["score"], kernel_shape=[4, 4], strides=[4, 4]),
+        helper.make_node("MaxPool", ["score"], ["pooled"], kernel_shape=[3, 3], strides=[1, 1], pads=[1, 1, 1, 1]),
+        helper.make_node("Equal", ["score", "pooled"], ["is_peak"]),
+        helper.make_node("Cast", ["is_peak"], ["peak_f"], to=TensorProto.FLOAT),
+        helper.make_node("Mul", ["score", "peak_f"], ["peak"]),
+        helper.make_node("Mul", ["score", "zero"], ["zeros"]),
+        helper.make_node("Add", ["zeros", "half"], ["offset"]),
+        helper.make_node("Add", ["zeros", "four"], ["size"]),
+        helper.make_node("Concat", ["peak", "offset", "offset", "size", "size"], ["maps"], axis=1),
+    ]
+    return _save(helper.make_graph(nodes, "bright_spot", [x], [y], consts), path)
+
+
+def brightness_classifier(path):
+    x = helper.make_tensor_value_info("patches", TensorProto.FLOAT, ["N", 3, 32, 32])
+    y = helper.make_tensor_value_info("prob", TensorProto.FLOAT, ["N", 2])
+    consts = [
+        numpy_helper.from_array(np.array([-1, 1], np.int64), "shape"),
+        numpy_helper.from_array(np.array(1.0, np.float32), "one"),
+    ]
+    nodes = [
+        helper.make_node("ReduceMean", ["patches"], ["mean4"], axes=[1, 2, 3], keepdims=1),
+        helper.make_node("Reshape", ["mean4", "shape"], ["drone"]),
+        helper.make_node("Sub", ["one", "drone"], ["clutter"]),
+        helper.make_node("Concat", ["clutter", "drone"], ["prob"], axis=1),
+    ]
+    return _save(helper.make_graph(nodes, "brightness", [x], [y], consts), path)

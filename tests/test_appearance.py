@@ -1,0 +1,177 @@
+"""payload.detect.appearance: letterbox mapping, decoding, NMS, and the shipped detectors on real frames."""
+
+import os
+
+import cv2
+import numpy as np
+import pytest
+from onnx_factories import bright_spot_detector
+
+from payload.config import AppearanceConfig, DetectorConfig
+from payload.detect.appearance import AppearanceDetector, letterbox, nms
+from payload.detect.onnx_model import OnnxModel
+from payload.errors import ModelError
+from payload.models import build_detectors, builtin_model_path
+
+
+@pytest.fixture
+def spot_model(tmp_path):
+    return OnnxModel(bright_spot_detector(tmp_path / "spot.onnx"), threads=1)
+
+
+def detector(model, input_wh, confidence=0.5, module="GAD"):
+    return AppearanceDetector(model, AppearanceConfig(confidence=confidence, input_wh=input_wh), module)
+
+
+@pytest.mark.parametrize(
+    "image_wh, input_wh, scale_xy",
+    [((1280, 768), (640, 384), (0.5, 0.5)), ((640, 512), (640, 384), (0.75, 0.75)), ((200, 150), (320, 320), (1, 1))],
+)
+def test_letterbox_scales_down_only_and_round_trips(image_wh, input_wh, scale_xy):
+    image = np.full((image_wh[1], image_wh[0], 3), 7, np.uint8)
+    canvas, box = letterbox(image, input_wh)
+    assert canvas.shape == (input_wh[1], input_wh[0], 3)
+    assert min(box.scale_xy) == pytest.approx(min(scale_xy), abs=2e-3)
+    # the image lands top-left, the rest is grey padding
+    new_w, new_h = round(image_wh[0] * box.scale_xy[0]), round(image_wh[1] * box.scale_xy[1])
+    assert (canvas[:new_h, :new_w] == 7).all()
+    assert (canvas[new_h:] == 114).all() and (canvas[:, new_w:] == 114).all()
+    xyxy = np.array([[10.0, 20.0, 50.0, 44.0]], np.float32)
+    assert np.allclose(box.to_image(box.to_input(xyxy)), xyxy, atol=1e-3)
+
+
+def test_box_maps_back_through_downscale_non_square_input_and_offset(spot_model):
+    # 1280x768 into 640x384 is a 0.5 down-scale: an 8x8 white square at (400, 200) becomes the
+    # 4x4 input cell (200, 100), which the bright-spot network reports as that cell's box
+    image = np.zeros((768, 1280, 3), np.uint8)
+    image[200:208, 400:408] = 255
+    dets = detector(spot_model, (640, 384)).detect(image, offset_xy=(1000, 50))
+    assert len(dets) == 1
+    assert np.allclose(dets.xyxy[0], [1400, 250, 1408, 258], atol=0.01)
+    assert dets.module[0] == "GAD" and dets.score[0] == pytest.approx(1.0)
+
+
+def test_small_crop_is_detected_at_native_resolution(spot_model):
+    crop = np.zeros((150, 200, 3), np.uint8)
+    crop[80:84, 40:44] = 255  # a 4x4 square: it would blur away if the crop were up- or down-scaled
+    dets = detector(spot_model, (320, 320), confidence=0.9, module="LAD").detect(crop, offset_xy=(300, 600))
+    assert len(dets) == 1
+    assert np.allclose(dets.xyxy[0], [340, 680, 344, 684], atol=0.01)
+    assert dets.module[0] == "LAD"
+
+
+def test_confidence_threshold_and_hot_reload(spot_model):
+    image = np.zeros((128, 128, 3), np.uint8)
+    image[16:20, 16:20] = 255
+    image[64:68, 64:68] = 100  # score 100/255 = 0.39
+    det = detector(spot_model, (128, 128), confidence=0.3)
+    assert len(det.detect(image)) == 2
+    det.update_config(AppearanceConfig(confidence=0.5, input_wh=(128, 128)))
+    dets = det.detect(image)
+    assert len(dets) == 1 and np.allclose(dets.xyxy[0], [16, 16, 20, 20])
+
+
+def test_empty_image_gives_empty_detections(spot_model):
+    dets = detector(spot_model, (128, 128)).detect(np.zeros((0, 0, 3), np.uint8))
+    assert len(dets) == 0 and dets.xyxy.shape == (0, 4)
+
+
+def test_model_with_wrong_output_layout_is_refused(tmp_path):
+    # a classifier-shaped graph fed as a detector: input name right, output wrong
+    import onnx
+    from onnx import TensorProto, helper
+
+    x = helper.make_tensor_value_info("images", TensorProto.FLOAT, ["N", 3, "H", "W"])
+    y = helper.make_tensor_value_info("out", TensorProto.FLOAT, ["N", 1, "H", "W"])
+    g = helper.make_graph([helper.make_node("ReduceMean", ["images"], ["out"], axes=[1], keepdims=1)], "g", [x], [y])
+    path = str(tmp_path / "wrong.onnx")
+    model = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    onnx.save(model, path)
+    with pytest.raises(ModelError, match=r"expected output \[N,5,H/s,W/s\]"):
+        detector(OnnxModel(path), (128, 128))
+
+
+@pytest.mark.parametrize(
+    "xyxy, score, iou, kept",
+    [
+        ([[0, 0, 10, 10], [1, 1, 11, 11], [50, 50, 60, 60]], [0.9, 0.8, 0.7], 0.4, [0, 2]),
+        ([[0, 0, 10, 10], [1, 1, 11, 11]], [0.6, 0.8], 0.4, [1]),
+        ([[0, 0, 10, 10], [5, 0, 15, 10]], [0.9, 0.8], 0.4, [0, 1]),  # IoU 1/3 < 0.4: both stay
+        ([[0, 0, 10, 10], [5, 0, 15, 10]], [0.9, 0.8], 0.3, [0]),
+        (np.zeros((0, 4)), [], 0.4, []),
+    ],
+)
+def test_nms(xyxy, score, iou, kept):
+    keep = nms(np.asarray(xyxy, np.float32).reshape(-1, 4), np.asarray(score, np.float32), iou)
+    assert keep.tolist() == kept
+
+
+def _shipped(name):
+    path = builtin_model_path(name)
+    if not os.path.exists(path):
+        pytest.skip("shipped model %s not built yet" % path)
+    return path
+
+
+def _val_frame(halmstad_dir, clip="V_DRONE_013", index=60):
+    import csv
+    import json
+
+    with open(os.path.join(halmstad_dir, "splits.json")) as fh:
+        assert clip in json.load(fh)["val"]
+    cap = cv2.VideoCapture(os.path.join(halmstad_dir, "visible", clip + ".mp4"))
+    cap.set(cv2.CAP_PROP_POS_FRAMES, index)
+    ok, image = cap.read()
+    assert ok
+    with open(os.path.join(halmstad_dir, "labels", clip + ".csv")) as fh:
+        row = next(r for r in csv.DictReader(fh) if int(r["frame"]) == index and r["class"] == "DRONE")
+    x, y, w, h = (float(row[k]) for k in "xywh")
+    return image, np.array([x - 1, y - 1, x - 1 + w, y - 1 + h], np.float32)
+
+
+def _iou(a, b):
+    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
+
+def test_shipped_global_detector_finds_the_drone_in_a_val_frame(halmstad_dir):
+    _shipped("global")
+    image, truth = _val_frame(halmstad_dir)
+    models = build_detectors(DetectorConfig())
+    dets = models.global_appearance.detect(image)
+    assert len(dets) >= 1
+    best = dets.sorted_by_score()[0]
+    assert _iou(best.xyxy[0], truth) > 0.5, (best.xyxy, truth)
+    assert best.module[0] == "GAD"
+
+
+def test_shipped_local_detector_finds_the_drone_in_a_search_region(halmstad_dir):
+    _shipped("local")
+    image, truth = _val_frame(halmstad_dir)
+    cx, cy = int((truth[0] + truth[2]) / 2), int((truth[1] + truth[3]) / 2)
+    x0, y0 = max(0, cx - 200), max(0, cy - 100)  # the drone off-centre in a 300x300 region
+    models = build_detectors(DetectorConfig())
+    dets = models.local_appearance.detect(image[y0:y0 + 300, x0:x0 + 300], offset_xy=(x0, y0))
+    assert len(dets) >= 1
+    best = dets.sorted_by_score()[0]
+    assert _iou(best.xyxy[0], truth) > 0.5, (best.xyxy, truth)
+    assert best.module[0] == "LAD"
+
+
+def test_build_detectors_respects_enabled_switches():
+    _shipped("global")
+    cfg = DetectorConfig.model_validate(
+        {"global": {"appearance": {"enabled": False}}, "classifier": {"enabled": False}}
+    )
+    models = build_detectors(cfg)
+    assert models.global_appearance is None and models.classifier is None
+    assert models.local_appearance is not None and models.local_appearance.input_wh == (320, 320)
+
+
+def test_build_detectors_reports_a_missing_configured_model(tmp_path):
+    cfg = DetectorConfig.model_validate({"local": {"appearance": {"model": str(tmp_path / "x.onnx")}}, "global": {"appearance": {"enabled": False}}, "classifier": {"enabled": False}})
+    with pytest.raises(ModelError, match="^detector.local.appearance.model: .*x.onnx: no such model file$"):
+        build_detectors(cfg)

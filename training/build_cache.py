@@ -1,0 +1,170 @@
+"""Decode the Halmstad training clips once into arrays under training/cache/.
+
+det_pos.npy   [N, S, S, 3] uint8 native-resolution crops with a drone anywhere inside,
+det_pos_xyxy.npy [N, 4] its box in crop pixels;
+det_neg.npy   [M, S, S, 3] crops without a drone (backgrounds of drone clips, birds,
+airliners, helicopters and their surroundings from the negatives clips);
+cls_x.npy [K, 32, 32, 3] uint8 classifier patches (payload.detect.patches.crop_patches),
+cls_y.npy [K] 1 = drone, 0 = clutter; clutter = random background boxes, bird/plane/heli
+boxes, and frame-difference blobs away from the label (what a motion detector proposes).
+
+Usage: python training/build_cache.py [--crop 256] [--every 4]
+"""
+
+import argparse
+import os
+import sys
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from payload.detect.patches import crop_patches  # noqa: E402
+from training.halmstad import frames, labels, splits  # noqa: E402
+
+CACHE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "cache")
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / max(union, 1e-6)
+
+
+def crop_with(rng, img, box, side):
+    """A side x side crop with ``box`` at a random place inside; returns crop, box in crop pixels."""
+    h, w = img.shape[:2]
+    bw, bh = box[2] - box[0], box[3] - box[1]
+    lo_x, hi_x = box[2] - side + min(4, side - bw), box[0] - min(4, side - bw)
+    lo_y, hi_y = box[3] - side + min(4, side - bh), box[1] - min(4, side - bh)
+    x0 = int(np.clip(rng.uniform(lo_x, max(lo_x, hi_x)), 0, w - side))
+    y0 = int(np.clip(rng.uniform(lo_y, max(lo_y, hi_y)), 0, h - side))
+    crop = img[y0:y0 + side, x0:x0 + side]
+    b = box - np.array([x0, y0, x0, y0], np.float32)
+    return crop, np.clip(b, 0, side)
+
+
+def random_free_crop(rng, img, avoid, side, tries=10):
+    h, w = img.shape[:2]
+    for _ in range(tries):
+        x0, y0 = int(rng.integers(0, w - side + 1)), int(rng.integers(0, h - side + 1))
+        c = np.array([x0, y0, x0 + side, y0 + side], np.float32)
+        if all(iou(c, a) == 0.0 for a in avoid):
+            return img[y0:y0 + side, x0:x0 + side]
+    return None
+
+
+def random_boxes(rng, img, avoid, n):
+    h, w = img.shape[:2]
+    out = []
+    for _ in range(n * 3):
+        bw = rng.uniform(8, 60)
+        bh = bw * rng.uniform(0.5, 1.2)
+        x, y = rng.uniform(0, w - bw), rng.uniform(0, h - bh)
+        b = np.array([x, y, x + bw, y + bh], np.float32)
+        if all(iou(b, a) < 0.05 for a in avoid):
+            out.append(b)
+        if len(out) == n:
+            break
+    return out
+
+
+def diff_blobs(prev, img, avoid, n):
+    """Boxes of frame-difference blobs that do not overlap ``avoid`` (motion-detector-like clutter)."""
+    g0 = cv2.GaussianBlur(cv2.cvtColor(prev, cv2.COLOR_BGR2GRAY), (5, 5), 0)
+    g1 = cv2.GaussianBlur(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), (5, 5), 0)
+    d = cv2.absdiff(g0, g1)
+    mask = (d > 5 + float(d.mean())).astype(np.uint8)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8), iterations=2)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask)
+    out = []
+    for x, y, bw, bh, area in stats[1:]:
+        if area < 6 or bw > 120 or bh > 120:
+            continue
+        b = np.array([x, y, x + bw, y + bh], np.float32)
+        if all(iou(b, a) < 0.05 for a in avoid):
+            out.append(b)
+    return out[:n]
+
+
+def jitter(rng, box, amount=0.15):
+    w, h = box[2] - box[0], box[3] - box[1]
+    s = rng.uniform(1 - amount, 1 + amount)
+    cx = (box[0] + box[2]) / 2 + rng.uniform(-amount, amount) * w
+    cy = (box[1] + box[3]) / 2 + rng.uniform(-amount, amount) * h
+    return np.array([cx - w * s / 2, cy - h * s / 2, cx + w * s / 2, cy + h * s / 2], np.float32)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--crop", type=int, default=256)
+    ap.add_argument("--every", type=int, default=4)
+    args = ap.parse_args()
+    rng = np.random.default_rng(0)
+    os.makedirs(CACHE, exist_ok=True)
+    sp = splits()
+    pos, pos_xyxy, neg, cls_x, cls_y = [], [], [], [], []
+    side = args.crop
+
+    for ci, clip in enumerate(sp["train"]):
+        lab = labels(clip)
+        prev = None
+        for i, img in frames(clip):
+            drones = [b for c, b in lab.get(i, []) if c == "DRONE"]
+            others = [b for c, b in lab.get(i, []) if c != "DRONE"]
+            if i % args.every == 0 and drones:
+                crop, b = crop_with(rng, img, drones[0], side)
+                pos.append(crop.copy())
+                pos_xyxy.append(b)
+            if i % (args.every * 3) == 1:
+                c = random_free_crop(rng, img, drones + others, side)
+                if c is not None:
+                    neg.append(c.copy())
+            if i % 3 == 0 and drones:
+                boxes = [jitter(rng, drones[0]) for _ in range(2)]
+                cls_x.append(crop_patches(img, np.array(boxes)))
+                cls_y += [1] * len(boxes)
+                bg = random_boxes(rng, img, drones, 2)
+                if prev is not None:
+                    bg += diff_blobs(prev, img, drones, 3)
+                if bg:
+                    cls_x.append(crop_patches(img, np.array(bg)))
+                    cls_y += [0] * len(bg)
+            prev = img
+        print("train %d/%d %s pos=%d neg=%d cls=%d" % (ci + 1, len(sp["train"]), clip, len(pos), len(neg), len(cls_y)), flush=True)
+
+    for ci, clip in enumerate(sp["negatives_train"]):
+        lab = labels(clip)
+        prev = None
+        for i, img in frames(clip):
+            others = [b for _, b in lab.get(i, [])]
+            if i % (args.every * 4) == 0:
+                if others and max(others[0][2] - others[0][0], others[0][3] - others[0][1]) < side - 8:
+                    crop, _ = crop_with(rng, img, others[0], side)
+                    neg.append(crop.copy())
+                c = random_free_crop(rng, img, [], side)
+                if c is not None:
+                    neg.append(c.copy())
+            if i % 4 == 0:
+                boxes = [jitter(rng, b) for b in others]
+                boxes += random_boxes(rng, img, others, 1)
+                if prev is not None:
+                    boxes += diff_blobs(prev, img, [], 2)
+                if boxes:
+                    cls_x.append(crop_patches(img, np.array(boxes)))
+                    cls_y += [0] * len(boxes)
+            prev = img
+        print("neg %d/%d %s neg=%d cls=%d" % (ci + 1, len(sp["negatives_train"]), clip, len(neg), len(cls_y)), flush=True)
+
+    np.save(os.path.join(CACHE, "det_pos.npy"), np.stack(pos))
+    np.save(os.path.join(CACHE, "det_pos_xyxy.npy"), np.stack(pos_xyxy).astype(np.float32))
+    np.save(os.path.join(CACHE, "det_neg.npy"), np.stack(neg))
+    np.save(os.path.join(CACHE, "cls_x.npy"), np.concatenate(cls_x))
+    np.save(os.path.join(CACHE, "cls_y.npy"), np.array(cls_y, np.uint8))
+    print("done pos=%d neg=%d cls=%d (drone %d)" % (len(pos), len(neg), len(cls_y), int(np.sum(cls_y))))
+
+
+if __name__ == "__main__":
+    main()

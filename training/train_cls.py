@@ -1,0 +1,93 @@
+"""Train the 32x32 patch classifier (MAV vs clutter) on training/cache/cls_*.npy on the CPU.
+
+  python training/train_cls.py --name cls1 --steps 3000 [--resume]
+A random 10% of the patches is held out (same clips as training, so optimistic) and
+reported as accuracy / precision / recall.
+"""
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from payload.detect.patches import patches_to_input  # noqa: E402
+from training.net import PatchClassifier, count_params  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+CACHE = os.path.join(HERE, "cache")
+
+
+def augment(rng, x):
+    x = x.copy()
+    flip = rng.random(len(x)) < 0.5
+    x[flip] = x[flip][:, :, ::-1]
+    xf = x.astype(np.float32)
+    c = rng.uniform(0.7, 1.3, (len(x), 1, 1, 1)).astype(np.float32)
+    b = rng.uniform(-25, 25, (len(x), 1, 1, 1)).astype(np.float32)
+    return np.clip((xf - 128) * c + 128 + b, 0, 255).astype(np.uint8)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--name", required=True)
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--batch", type=int, default=128)
+    ap.add_argument("--lr", type=float, default=2e-3)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--resume", action="store_true")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    run = os.path.join(HERE, "runs", args.name)
+    os.makedirs(run, exist_ok=True)
+    X = np.load(os.path.join(CACHE, "cls_x.npy"))
+    Y = np.load(os.path.join(CACHE, "cls_y.npy")).astype(np.int64)
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(len(Y))
+    hold, train = perm[: len(Y) // 10], perm[len(Y) // 10:]
+    pos, neg = train[Y[train] == 1], train[Y[train] == 0]
+    net = PatchClassifier()
+    opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
+    step = 0
+    last = os.path.join(run, "last.pt")
+    if args.resume and os.path.exists(last):
+        ck = torch.load(last, weights_only=False)
+        net.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["opt"])
+        step = ck["step"]
+    print("params=%d train=%d (pos %d) holdout=%d" % (count_params(net), len(train), len(pos), len(hold)), flush=True)
+    t0 = time.time()
+    while step < args.steps:
+        net.train()
+        for g in opt.param_groups:
+            g["lr"] = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
+        idx = np.concatenate([rng.choice(pos, args.batch // 2), rng.choice(neg, args.batch // 2)])
+        x = torch.from_numpy(patches_to_input(augment(rng, X[idx])))
+        loss = F.cross_entropy(net(x), torch.from_numpy(Y[idx]))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        if step % 200 == 0 or step == args.steps:
+            net.eval()
+            with torch.no_grad():
+                p = torch.cat([torch.softmax(net(torch.from_numpy(patches_to_input(X[hold[i:i + 2048]]))), 1)[:, 1]
+                               for i in range(0, len(hold), 2048)]).numpy()
+            y = Y[hold]
+            tp = int(((p >= 0.5) & (y == 1)).sum())
+            prec = tp / max(1, int((p >= 0.5).sum()))
+            rec = tp / max(1, int((y == 1).sum()))
+            print("step=%d loss=%.3f holdout acc=%.4f P=%.4f R=%.4f s/step=%.3f"
+                  % (step, loss.item(), float(((p >= 0.5) == (y == 1)).mean()), prec, rec, (time.time() - t0) / 200), flush=True)
+            t0 = time.time()
+            torch.save({"model": net.state_dict(), "opt": opt.state_dict(), "step": step}, last + ".tmp")
+            os.replace(last + ".tmp", last)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,202 @@
+"""Train the tiny CenterNet detector on cached Halmstad crops (training/build_cache.py) on the CPU.
+
+One network serves the global detector (frames down-scaled ~0.75 into 640x384) and the local
+one (crops at native resolution): each sample is re-scaled by a random factor in
+[--scale-min, --scale-max] before a random --size crop, so both regimes are seen.
+
+  python training/train_det.py --name det1 --steps 3000            # new run
+  python training/train_det.py --name det1 --steps 5000 --resume   # continue from last.pt
+Checkpoints and log go to training/runs/<name>/.
+"""
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from training.net import STRIDE, TinyCenterNet, count_params  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+CACHE = os.path.join(HERE, "cache")
+PAD = 114
+
+
+class Sampler:
+    def __init__(self, size, scale_min, scale_max, neg_frac, seed, extra=None):
+        self.pos = np.load(os.path.join(CACHE, "det_pos.npy"), mmap_mode="r")
+        self.pos_xyxy = np.load(os.path.join(CACHE, "det_pos_xyxy.npy"))
+        self.neg = np.load(os.path.join(CACHE, "det_neg.npy"), mmap_mode="r")
+        self.extra = extra  # optional (images, xyxy) of further positives, e.g. synthetic scenes
+        self.size, self.smin, self.smax, self.neg_frac = size, scale_min, scale_max, neg_frac
+        self.rng = np.random.default_rng(seed)
+
+    def one(self):
+        rng, t = self.rng, self.size
+        if rng.random() < self.neg_frac:
+            img, box = np.asarray(self.neg[rng.integers(len(self.neg))]), None
+        elif self.extra is not None and rng.random() < 0.3:
+            k = rng.integers(len(self.extra[0]))
+            img, box = np.asarray(self.extra[0][k]), self.extra[1][k].copy()
+        else:
+            k = rng.integers(len(self.pos))
+            img, box = np.asarray(self.pos[k]), self.pos_xyxy[k].copy()
+        # log-uniform scale: as many down-scaled (global) as native (local) samples
+        s = math.exp(rng.uniform(math.log(self.smin), math.log(self.smax)))
+        h, w = img.shape[:2]
+        nw, nh = max(8, int(round(w * s))), max(8, int(round(h * s)))
+        img = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+        if box is not None:
+            box = box * np.array([nw / w, nh / h, nw / w, nh / h], np.float32)
+        canvas = np.full((t, t, 3), PAD, np.uint8)
+        # canvas origin (ox, oy) in the resized crop: the box fully inside, the crop covering the
+        # canvas where possible (grey padding only where the crop is smaller than the canvas)
+        def origin(lo_box, hi_box, n):
+            lo_img, hi_img = min(0, n - t), max(0, n - t)
+            lo, hi = max(lo_box, lo_img), min(hi_box, hi_img)
+            if lo > hi:
+                lo, hi = (lo_box, hi_box) if lo_box <= hi_box else ((lo_box + hi_box) / 2,) * 2
+            return rng.uniform(lo, hi)
+
+        if box is not None:
+            ox = origin(box[2] - t + 1, box[0] - 1, nw)
+            oy = origin(box[3] - t + 1, box[1] - 1, nh)
+        else:
+            ox = origin(-1e9, 1e9, nw)
+            oy = origin(-1e9, 1e9, nh)
+        tx, ty = -ox, -oy
+        tx, ty = int(round(tx)), int(round(ty))
+        x0, y0 = max(0, tx), max(0, ty)
+        x1, y1 = min(t, tx + nw), min(t, ty + nh)
+        if x1 > x0 and y1 > y0:
+            canvas[y0:y1, x0:x1] = img[y0 - ty:y1 - ty, x0 - tx:x1 - tx]
+        if box is not None:
+            box = box + np.array([tx, ty, tx, ty], np.float32)
+        if rng.random() < 0.5:
+            canvas = canvas[:, ::-1]
+            if box is not None:
+                box = np.array([t - box[2], box[1], t - box[0], box[3]], np.float32)
+        # photometric jitter: contrast, brightness, occasional blur
+        img = canvas.astype(np.float32)
+        img = (img - 128) * rng.uniform(0.7, 1.3) + 128 + rng.uniform(-25, 25)
+        if rng.random() < 0.2:
+            img = cv2.GaussianBlur(img, (3, 3), 0)
+        img = np.clip(img, 0, 255)[..., ::-1] / 255.0
+        return img.transpose(2, 0, 1).astype(np.float32), box
+
+    def batch(self, n):
+        xs, boxes = zip(*(self.one() for _ in range(n)))
+        return torch.from_numpy(np.stack(xs)), list(boxes)
+
+
+def targets(boxes, size):
+    """Heatmap (gaussian per centre), offset / log-size regression targets and their mask."""
+    g = size // STRIDE
+    n = len(boxes)
+    hm = np.zeros((n, 1, g, g), np.float32)
+    reg = np.zeros((n, 4, g, g), np.float32)
+    mask = np.zeros((n, 1, g, g), np.float32)
+    yy, xx = np.mgrid[0:g, 0:g].astype(np.float32)
+    for i, b in enumerate(boxes):
+        if b is None:
+            continue
+        b = np.clip(b, 0, size - 1e-3)
+        w, h = b[2] - b[0], b[3] - b[1]
+        if w < 1 or h < 1:
+            continue
+        cx, cy = (b[0] + b[2]) / 2 / STRIDE, (b[1] + b[3]) / 2 / STRIDE
+        ix, iy = int(cx), int(cy)
+        sigma = max(0.5, min(w, h) / STRIDE / 4.0)
+        hm[i, 0] = np.maximum(hm[i, 0], np.exp(-((xx - ix) ** 2 + (yy - iy) ** 2) / (2 * sigma ** 2)))
+        reg[i, :, iy, ix] = [cx - ix, cy - iy, math.log(w / STRIDE), math.log(h / STRIDE)]
+        mask[i, 0, iy, ix] = 1.0
+    return torch.from_numpy(hm), torch.from_numpy(reg), torch.from_numpy(mask)
+
+
+def focal_loss(logit, hm):
+    p = torch.sigmoid(logit).clamp(1e-4, 1 - 1e-4)
+    pos = hm.eq(1).float()
+    neg_w = (1 - hm) ** 4
+    pos_loss = torch.log(p) * (1 - p) ** 2 * pos
+    neg_loss = torch.log(1 - p) * p ** 2 * neg_w * (1 - pos)
+    npos = pos.sum().clamp(min=1)
+    return -(pos_loss.sum() + neg_loss.sum()) / npos
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--name", required=True)
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--lr", type=float, default=3e-3)
+    ap.add_argument("--scale-min", type=float, default=0.45)
+    ap.add_argument("--scale-max", type=float, default=1.3)
+    ap.add_argument("--neg-frac", type=float, default=0.3)
+    ap.add_argument("--width", type=float, default=1.0)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tuning)")
+    ap.add_argument("--synth", default=None, help="npz with extra positives: images [N,S,S,3], xyxy [N,4]")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    run = os.path.join(HERE, "runs", args.name)
+    os.makedirs(run, exist_ok=True)
+    net = TinyCenterNet(args.width)
+    opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
+    step = 0
+    last = os.path.join(run, "last.pt")
+    if args.resume and os.path.exists(last):
+        ck = torch.load(last, weights_only=False)
+        net.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["opt"])
+        step = ck["step"]
+        print("resumed step=%d" % step, flush=True)
+    elif args.init:
+        net.load_state_dict(torch.load(args.init, weights_only=False)["model"])
+        print("init from %s" % args.init, flush=True)
+    extra = None
+    if args.synth:
+        z = np.load(args.synth)
+        extra = (z["images"], z["xyxy"])
+    sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra)
+    print("params=%d steps=%d batch=%d size=%d" % (count_params(net), args.steps, args.batch, args.size), flush=True)
+    net.train()
+    t0 = time.time()
+    avg = None
+    while step < args.steps:
+        lr = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
+        for g in opt.param_groups:
+            g["lr"] = lr
+        x, boxes = sampler.batch(args.batch)
+        hm, reg, mask = targets(boxes, args.size)
+        out = net(x)
+        l_hm = focal_loss(out[:, 0:1], hm)
+        npos = mask.sum().clamp(min=1)
+        l_off = (F.l1_loss(out[:, 1:3], reg[:, 0:2], reduction="none") * mask).sum() / npos
+        l_wh = (F.l1_loss(out[:, 3:5], reg[:, 2:4], reduction="none") * mask).sum() / npos
+        loss = l_hm + l_off + l_wh
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        cur = np.array([loss.item(), l_hm.item(), l_off.item(), l_wh.item()])
+        avg = cur if avg is None else 0.98 * avg + 0.02 * cur
+        if step % 50 == 0:
+            print("step=%d loss=%.3f hm=%.3f off=%.3f wh=%.3f lr=%.5f s/step=%.2f"
+                  % (step, *avg, lr, (time.time() - t0) / 50), flush=True)
+            t0 = time.time()
+        if step % 200 == 0 or step == args.steps:
+            torch.save({"model": net.state_dict(), "opt": opt.state_dict(), "step": step, "width": args.width}, last + ".tmp")
+            os.replace(last + ".tmp", last)
+    print("done step=%d" % step, flush=True)
+
+
+if __name__ == "__main__":
+    main()
