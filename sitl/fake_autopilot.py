@@ -47,7 +47,7 @@ def trajectory(t_s):
     """The scripted attitude (roll, pitch, yaw in rad) at t_s seconds after start."""
     roll = 0.2 * math.sin(2.0 * math.pi * 0.5 * t_s)
     pitch = 0.1 * math.sin(2.0 * math.pi * 0.3 * t_s + 0.5)
-    yaw = math.remainder(2.8 + 0.5 * t_s, 2.0 * math.pi)  # crosses +-pi at t = 0.68 s, then every 12.6 s
+    yaw = math.remainder(2.8 + 2.0 * t_s, 2.0 * math.pi)  # crosses +-pi at t = 0.17 s, then every pi s
     return roll, pitch, yaw
 
 
@@ -169,18 +169,17 @@ class FakeAutopilot:
 
     def run(self):
         deadline_ns = self.start_ns + int(self.args.duration * 1e9) if self.args.duration > 0 else None
-        fds = [self.conn.fd]
-        if self.args.stdin_control:
-            fds.append(sys.stdin)
+        stdin_open = self.args.stdin_control
         while deadline_ns is None or time.monotonic_ns() < deadline_ns:
-            readable, _, _ = select.select(fds, [], [], 0.002)
+            fd = self.conn.fd  # tcpin: changes from the listening socket to the accepted one
+            readable, _, _ = select.select([fd, sys.stdin] if stdin_open else [fd], [], [], 0.002)
             if sys.stdin in readable:
                 line = sys.stdin.readline()
                 if not line:
-                    fds.remove(sys.stdin)
+                    stdin_open = False
                 elif line.strip():
                     self.gcs_send(line)
-            if self.conn.fd in readable:
+            if fd in readable:
                 while True:
                     msg = self.conn.recv_msg()
                     if msg is None:
