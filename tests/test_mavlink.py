@@ -461,3 +461,23 @@ def test_link_through_mavproxy(fakes, tmp_path):
         except subprocess.TimeoutExpired:
             proxy.kill()
         log.close()
+
+
+def test_coarse_time_offset_without_timesync_as_onboard_computer(fakes, tmp_path):
+    port = free_port()
+    fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}", "--attitude-hz", "20")
+    link = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}", timesync=False, attitude_rate_hz=0.0,
+                                component_id=191, component_type="onboard_computer"))
+    with link:
+        wait_for(lambda: link.status.attitude_age_s is not None, 10.0, "streamed ATTITUDE")
+        time.sleep(1.0)
+        st = link.status
+        # the offset comes from ATTITUDE time_boot_ms; it is late by the delivery latency, never early
+        assert not st.time_synced and st.time_offset_ns is not None
+        assert -20_000_000 < st.time_offset_ns + fake.start_ns <= 1_000_000
+        att = link.attitude_at(time.monotonic_ns() - 100_000_000)
+        ref = trajectory((time.monotonic_ns() - 100_000_000 - fake.start_ns) / 1e9)
+        assert att is not None and abs(att.roll_rad - ref[0]) < 0.05
+    assert fake.rows("TIMESYNC") == []
+    hbs = [r for r in fake.rows("HEARTBEAT") if r["compid"] == 191]
+    assert hbs and hbs[0]["fields"]["type"] == 18 and hbs[0]["fields"]["autopilot"] == MAV_AUTOPILOT_INVALID
