@@ -481,3 +481,52 @@ def test_coarse_time_offset_without_timesync_as_onboard_computer(fakes, tmp_path
     assert fake.rows("TIMESYNC") == []
     hbs = [r for r in fake.rows("HEARTBEAT") if r["compid"] == 191]
     assert hbs and hbs[0]["fields"]["type"] == 18 and hbs[0]["fields"]["autopilot"] == MAV_AUTOPILOT_INVALID
+
+
+def test_serial_link_over_a_pty(fakes, tmp_path):
+    """A serial connection string (pyserial on a pseudo-terminal), bridged to the fake autopilot's UDP port."""
+    pytest.importorskip("serial")
+    import select as select_mod
+
+    master, slave = os.openpty()
+    device = os.ttyname(slave)
+    port = free_port()
+    fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.connect(("127.0.0.1", port))
+    stop = threading.Event()
+
+    def bridge():  # pty master <-> UDP, like a telemetry cable
+        while not stop.is_set():
+            ready, _, _ = select_mod.select([master, sock], [], [], 0.05)
+            if master in ready:
+                sock.send(os.read(master, 4096))
+            if sock in ready:
+                os.write(master, sock.recv(4096))
+
+    t = threading.Thread(target=bridge, daemon=True)
+    t.start()
+    try:
+        link = MavlinkLink(link_cfg(device, baud=921600, attitude_rate_hz=20.0))
+        with link:
+            wait_for(lambda: link.status.autopilot_seen and link.status.time_synced, 10.0, "autopilot over serial")
+            wait_for(lambda: link.attitude_at(time.monotonic_ns() - 50_000_000), 5.0, "attitude over serial")
+            assert link.send_message("DEBUG_VECT", name=b"TGT_BRG", time_usec=1, x=0.5, y=0.25, z=0.9)
+            wait_for(lambda: fake.rows("DEBUG_VECT"), 5.0, "DEBUG_VECT over serial")
+        assert fake.rows("DEBUG_VECT")[0]["fields"]["x"] == 0.5
+    finally:
+        stop.set()
+        t.join(2)
+        sock.close()
+        os.close(master)
+        os.close(slave)
+
+
+def test_missing_serial_device_is_retried_quietly(caplog):
+    link = MavlinkLink(link_cfg("/dev/ttyGLAD_missing0"))
+    with caplog.at_level("WARNING", logger="payload.mavlink.link"), link:
+        time.sleep(1.2)  # back-off 0.2, 0.4, 0.5 s: several attempts
+        assert not link.status.connected and link.status.connect_failures >= 3
+        assert link.send_message("DEBUG_VECT", name=b"TGT_BRG", time_usec=1, x=0.0, y=0.0, z=0.0) is False
+    failures = [r for r in caplog.records if "connect failed" in r.getMessage()]
+    assert len(failures) == 1 and "/dev/ttyGLAD_missing0" in failures[0].getMessage()  # logged once, not per try

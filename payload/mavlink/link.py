@@ -133,6 +133,7 @@ class LinkStatus:
     time_synced: bool  # offset from TIMESYNC round trips (False: coarse or none)
     rejected: int  # incoming messages dropped for a missing/bad signature
     commands_ignored: int  # COMMAND_LONGs from system ids not in command_sysids
+    connect_failures: int  # failed attempts to open the connection (retried with back-off)
 
 
 class _TcpClosed(ConnectionError):
@@ -159,6 +160,7 @@ class MavlinkLink:
         self._dropped = 0
         self._rejected_before = 0  # from connections already closed
         self._commands_ignored = 0
+        self._connect_failures = 0
         self._detection_enabled = True
         self._ignored_logged: Set[Any] = set()
         self._other_sysid_logged: Set[Any] = set()
@@ -235,6 +237,7 @@ class MavlinkLink:
                 time_synced=synced,
                 rejected=rejected,
                 commands_ignored=self._commands_ignored,
+                connect_failures=self._connect_failures,
             )
 
     def send_message(self, msg_type: str, /, **fields: Any) -> bool:
@@ -335,6 +338,7 @@ class MavlinkLink:
                 try:
                     conn = self._open()
                 except (OSError, ConnectionError, ValueError) as exc:
+                    self._connect_failures += 1
                     if not failing:
                         log.warning(
                             "mavlink connect failed, retrying: connection=%s error=%s", self.cfg.connection, exc
