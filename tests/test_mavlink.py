@@ -530,3 +530,15 @@ def test_missing_serial_device_is_retried_quietly(caplog):
         assert link.send_message("DEBUG_VECT", name=b"TGT_BRG", time_usec=1, x=0.0, y=0.0, z=0.0) is False
     failures = [r for r in caplog.records if "connect failed" in r.getMessage()]
     assert len(failures) == 1 and "/dev/ttyGLAD_missing0" in failures[0].getMessage()  # logged once, not per try
+
+
+def test_only_link_module_imports_pymavlink():
+    importers = []
+    for root, _, files in os.walk(os.path.join(REPO, "payload")):
+        for name in files:
+            if name.endswith(".py"):
+                path = os.path.join(root, name)
+                with open(path, encoding="utf-8") as fh:
+                    if any(line.lstrip().startswith(("import pymavlink", "from pymavlink")) for line in fh):
+                        importers.append(os.path.relpath(path, REPO))
+    assert importers == [os.path.join("payload", "mavlink", "link.py")]

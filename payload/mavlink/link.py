@@ -360,6 +360,11 @@ class MavlinkLink:
                 with self._lock:
                     self._close()
                 self._stop.wait(backoff_s)
+            except Exception as exc:  # the link must outlive one malformed message or a bug
+                log.error("mavlink thread error, reopening: error=%r", exc, exc_info=True)
+                with self._lock:
+                    self._close()
+                self._stop.wait(backoff_s)
             if self._broken:
                 with self._lock:
                     self._close()
