@@ -11,6 +11,9 @@ It is system 1, component 1 (MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA) an
 - answers MAV_CMD_SET_MESSAGE_INTERVAL for ATTITUDE with COMMAND_ACK and then streams
   ATTITUDE at the asked rate, following ``trajectory(t)`` (sinusoidal roll and pitch, yaw
   turning through +-pi); other message ids and commands get MAV_RESULT_UNSUPPORTED;
+  with ``--scene-seed N`` (offered only when ``payload.synth.scene`` is importable) the
+  attitude is instead the synthetic scene's camera (roll, pitch, yaw) at frame
+  ``int(t * --scene-fps)``, so a payload rendering the same scene sees a consistent vehicle;
 - sends COMMAND_LONG like a ground station (system 255, component 190 by default) at given
   times (``--command-at T:ACTION``) or when a line ``ACTION`` arrives on stdin
   (``--stdin-control``). ACTION = enable | disable | NUMBER (a MAV_CMD id), optionally
@@ -41,6 +44,38 @@ from pymavlink import mavutil  # noqa: E402
 
 M = mavutil.mavlink
 GCS_COMPID = 190  # MAV_COMP_ID_MISSIONPLANNER
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _scene_class():
+    """payload.synth.scene.Scene when importable (from this checkout or the environment), else None."""
+    if REPO not in sys.path:
+        sys.path.append(REPO)
+    try:
+        from payload.synth.scene import Scene
+    except ImportError:
+        return None
+    return Scene
+
+
+class SceneAttitude:
+    """The synthetic scene's camera attitude per frame, rendered small (the camera path does not
+    depend on the image size) and advanced lazily as time passes. A zero camera mount is assumed:
+    camera roll/pitch/yaw = vehicle roll/pitch/yaw."""
+
+    def __init__(self, scene_cls, seed, fps):
+        self.fps = fps
+        scene = scene_cls(seed=seed, width=160, height=96, fps=fps, frames=0, clutter=0, birds=0, cars=0, noise=0.0)
+        self.frames = iter(scene)
+        self.index = -1
+        self.rpy = (0.0, 0.0, 0.0)
+
+    def __call__(self, t_s):
+        want = int(t_s * self.fps)
+        while self.index < want:
+            self.rpy = tuple(float(a) for a in next(self.frames).camera_rpy_rad)
+            self.index += 1
+        return self.rpy
 
 
 def trajectory(t_s):
@@ -92,6 +127,8 @@ class FakeAutopilot:
             self.conn.setup_signing(self.key, sign_outgoing=True)
         self.record = open(args.record, "a", encoding="utf-8") if args.record else None
         self.attitude_period_ns = int(1e9 / args.attitude_hz) if args.attitude_hz > 0 else 0
+        scene_seed = getattr(args, "scene_seed", None)
+        self.attitude_of = trajectory if scene_seed is None else SceneAttitude(_scene_class(), scene_seed, args.scene_fps)
         self.next_attitude_ns = 0
         self.next_heartbeat_ns = 0
         self.pending = sorted(
@@ -160,7 +197,7 @@ class FakeAutopilot:
             self.next_heartbeat_ns = now_ns + 1_000_000_000
         if self.attitude_period_ns and now_ns >= self.next_attitude_ns:
             boot_ms = (now_ns - self.start_ns) // 1_000_000
-            roll, pitch, yaw = trajectory(boot_ms / 1000.0)
+            roll, pitch, yaw = self.attitude_of(boot_ms / 1000.0)
             self.conn.mav.send(M.MAVLink_attitude_message(boot_ms, roll, pitch, yaw, 0.0, 0.0, 0.0))
             self.next_attitude_ns = max(self.next_attitude_ns + self.attitude_period_ns, now_ns)
         elapsed_s = (now_ns - self.start_ns) / 1e9
@@ -209,6 +246,10 @@ def main(argv=None):
     p.add_argument("--target-sysid", type=int, default=1, help="system id the commands go to")
     p.add_argument("--target-compid", type=int, default=100, help="component id the commands go to")
     p.add_argument("--signing-key", default=None, help="MAVLink 2 signing key file")
+    if _scene_class() is not None:
+        p.add_argument("--scene-seed", type=int, default=None,
+                       help="ATTITUDE = the camera motion of the synthetic scene with this seed")
+        p.add_argument("--scene-fps", type=float, default=30.0, help="frame rate of that scene")
     args = p.parse_args(argv)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     fake = FakeAutopilot(args)
