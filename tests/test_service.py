@@ -182,7 +182,7 @@ def test_run_with_mavproxy_in_the_middle(tmp_path):
     # MAVProxy listens for the payload and forwards to the autopilot, as a GCS-side router would.
     router = subprocess.Popen(
         [sys.executable, mavproxy, "--master=udpin:127.0.0.1:%d" % payload_port,
-         "--out=udpout:127.0.0.1:%d" % autopilot_port, "--daemon", "--non-interactive",
+         "--out=udpout:127.0.0.1:%d" % autopilot_port, "--daemon", "--non-interactive", "--default-modules=",
          "--state-basedir=%s" % tmp_path, "--nowait"],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=str(tmp_path),
     )
