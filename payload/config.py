@@ -40,6 +40,14 @@ class SyntheticSceneConfig(Section):
     fps: float = Field(30.0, gt=0, le=1000)
     frames: int = Field(0, ge=0, description="Frames to render; 0 = endless.")
     background: Optional[str] = Field(None, description="Video whose frames serve as backgrounds.")
+    target_px: Tuple[float, float] = Field((4.0, 80.0), description="Target drone size range, px across.")
+
+    @model_validator(mode="after")
+    def _target_px(self):
+        lo, hi = self.target_px
+        if not (0 < lo <= hi):
+            raise ValueError(f"target_px {list(self.target_px)}: expected [min, max] with 0 < min <= max")
+        return self
 
 
 class CaptureConfig(Section):
@@ -120,7 +128,9 @@ class MotionConfig(Section):
     max_aspect: float = Field(3.0, ge=1, le=100, description="Longest/shortest box side allowed.")
     merge_distance_px: float = Field(15.0, ge=0, le=1000, description="D1: merge boxes closer than this.")
     max_blobs: int = Field(50, ge=1, le=100000, description="More blobs than this: frame too noisy, no detection.")
-    angle_spread_max: float = Field(0.8, ge=0, le=10, description="T3: circular spread of flow angles.")
+    angle_spread_max: float = Field(
+        0.33, ge=0, le=10, description="T3: circular spread (1 - mean resultant length) of flow angles; 0.33 ~ the paper's angle variance 0.8 rad^2."
+    )
     speed_spread_max: float = Field(0.8, ge=0, le=100, description="T4: spread (std/mean) of flow speeds.")
     min_speed_px: float = Field(1.0, ge=0, le=1000, description="T5: mean flow speed, px between frames.")
     max_corners: int = Field(30, ge=1, le=1000)

@@ -31,3 +31,7 @@ class ModelError(PayloadError):
 
 class LinkLost(PayloadError):
     """The MAVLink connection failed or the autopilot stopped answering."""
+
+
+class DataError(PayloadError):
+    """A detections CSV or label file is missing or malformed (the message names file:line)."""

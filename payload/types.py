@@ -85,9 +85,11 @@ class Detections:
         return len(self.score)
 
     def __getitem__(self, index) -> "Detections":
-        index = np.asarray(index)
-        if index.ndim == 0:
-            index = index.reshape(1)
+        """Select rows with a slice, an index array or a boolean mask; an int keeps one row."""
+        if not isinstance(index, slice):
+            index = np.asarray(index)
+            if index.ndim == 0:
+                index = index.reshape(1)
         return Detections(self.xyxy[index], self.score[index], self.module[index])
 
     @property

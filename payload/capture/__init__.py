@@ -1,0 +1,37 @@
+"""Frame sources: cameras (V4L2, GStreamer) and recordings (video file, image folder, synthetic).
+
+``open_source(cfg.capture)`` builds the source named in the config; the caller opens it
+(``with open_source(cfg) as source:``). Heavy or optional imports (PyGObject, the synthetic
+scene renderer) happen only for the kind that needs them.
+"""
+
+from payload.capture.base import EndOfStream, FrameSource, SourceStats
+from payload.config import CaptureConfig
+from payload.errors import ConfigError
+
+__all__ = ["EndOfStream", "FrameSource", "SourceStats", "open_source"]
+
+
+def open_source(cfg: CaptureConfig) -> FrameSource:
+    """The frame source named by ``cfg.source``, not yet opened."""
+    if cfg.source == "synthetic":
+        from payload.capture.synthetic import SyntheticSource
+
+        return SyntheticSource(cfg.synthetic, pace=cfg.pace)
+    if cfg.source == "file":
+        from payload.capture.file import VideoFileSource
+
+        return VideoFileSource(cfg.path, fps=cfg.fps, loop=cfg.loop, pace=cfg.pace)
+    if cfg.source == "folder":
+        from payload.capture.file import ImageFolderSource
+
+        return ImageFolderSource(cfg.path, fps=cfg.fps, loop=cfg.loop, pace=cfg.pace)
+    if cfg.source == "v4l2":
+        from payload.capture.v4l2 import V4L2Source
+
+        return V4L2Source(cfg.device, width=cfg.width, height=cfg.height, fps=cfg.fps, fourcc=cfg.fourcc, retry=cfg.retry)
+    if cfg.source == "gstreamer":
+        from payload.capture.gstreamer import GStreamerSource
+
+        return GStreamerSource(cfg.pipeline, retry=cfg.retry)
+    raise ConfigError(["capture.source: %r is not one of synthetic, file, folder, v4l2, gstreamer" % (cfg.source,)])

@@ -1,0 +1,232 @@
+"""GLAD: the global-local detector around the four modules (paper Fig. 2).
+
+Per frame one detector runs, chosen by the switcher:
+- global: appearance (GAD) on the down-scaled full frame; only if it finds nothing, motion
+  (GMD) on the full frame, its candidates checked by the 32x32 classifier;
+- local: appearance (LAD) inside the search region at native resolution; only if it finds
+  nothing, motion (LMD) inside the region, checked by the classifier.
+A hit moves/keeps the switcher on local and updates the search region; a local miss grows
+the region around its prediction until the switcher gives up.
+"""
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Dict, Optional
+
+import cv2
+import numpy as np
+
+from payload.config import DetectorConfig
+from payload.detect.motion import HomographyEstimate, MotionDetector, estimate_homography
+from payload.detect.region import SearchRegion
+from payload.detect.switcher import GLOBAL, LOCAL, Switcher
+from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
+
+log = logging.getLogger(__name__)
+
+# Camera motion for the search region is estimated on a grey image no wider than this: the
+# region only needs the centre carried to a few pixels, and it runs on every local frame.
+_EGO_MOTION_WIDTH_PX = 640
+
+
+@dataclass(frozen=True)
+class GladResult:
+    """What GLAD decided for one frame."""
+
+    frame_index: int
+    t_capture_ns: int
+    mode: str  # the detector that ran: 'global' or 'local'
+    detections: Detections  # the chosen target as 0 or 1 rows (what is reported and scored)
+    candidates: Detections  # every box the modules that ran produced (debugging)
+    target: Optional[Target]  # measured or predicted (coasting) target; None when searching globally
+    region_xyxy: Optional[np.ndarray]  # the search region searched this frame (local mode)
+    timings_ms: Dict[str, float] = field(default_factory=dict)  # per module, for the benchmark
+
+
+class Glad:
+    """Runs the GLAD pipeline frame by frame. ``models`` comes from payload.models.build_detectors."""
+
+    def __init__(self, cfg: DetectorConfig, models=None) -> None:
+        if models is None:
+            from payload.models import build_detectors
+
+            models = build_detectors(cfg)
+        self.cfg = cfg
+        self.models = models
+        self.gmd = MotionDetector(cfg.global_.motion, GMD)
+        self.lmd = MotionDetector(cfg.local.motion, LMD)
+        self.region = SearchRegion(cfg.search_region)
+        self.switcher = Switcher(cfg.switcher, local_available=self._local_available(cfg))
+        self._prev_grey: Optional[np.ndarray] = None
+        self._prev_small: Optional[np.ndarray] = None
+        self._prev_t_ns: Optional[int] = None
+
+    @staticmethod
+    def _local_available(cfg: DetectorConfig) -> bool:
+        return cfg.local.appearance.enabled or cfg.local.motion.enabled
+
+    def update_config(self, cfg: DetectorConfig) -> None:
+        """Hot reload: thresholds and switches; models stay as loaded."""
+        self.cfg = cfg
+        self.gmd.update_config(cfg.global_.motion)
+        self.lmd.update_config(cfg.local.motion)
+        self.region.update_config(cfg.search_region)
+        self.switcher.update_config(cfg.switcher)
+        self.switcher.local_available = self._local_available(cfg)
+        if self.models.global_appearance is not None:
+            self.models.global_appearance.update_config(cfg.global_.appearance)
+        if self.models.local_appearance is not None:
+            self.models.local_appearance.update_config(cfg.local.appearance)
+        if self.models.classifier is not None:
+            self.models.classifier.update_config(cfg.classifier)
+
+    def reset(self) -> None:
+        self.switcher.reset()
+        self.region.reset()
+        self._prev_grey = self._prev_small = self._prev_t_ns = None
+
+    # --- the per-frame step -------------------------------------------------------------
+
+    def process(self, frame: Frame) -> GladResult:
+        timings: Dict[str, float] = {}
+        t0 = time.perf_counter()
+        grey = cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
+        timings["grey"] = _ms(t0)
+        mode = self.switcher.mode if self.region.active else GLOBAL
+        if mode == LOCAL:
+            result = self._local(frame, grey, timings)
+        else:
+            result = self._global(frame, grey, timings)
+        self._prev_grey = grey
+        self._prev_t_ns = frame.t_capture_ns
+        return result
+
+    def _global(self, frame: Frame, grey: np.ndarray, timings: Dict[str, float]) -> GladResult:
+        found = Detections.empty()
+        candidates = []
+        gad = self.models.global_appearance
+        if gad is not None and self.cfg.global_.appearance.enabled:
+            t = time.perf_counter()
+            found = gad.detect(frame.image)
+            timings[GAD] = _ms(t)
+            candidates.append(found)
+        if not len(found) and self.cfg.global_.motion.enabled and self._prev_grey is not None:
+            t = time.perf_counter()
+            motion = self.gmd.detect(self._prev_grey, grey)
+            timings[GMD] = _ms(t)
+            found = self._classify(frame.image, motion.detections, timings)
+            candidates.append(motion.detections)
+        # The motion pass sets its own previous frame; keep the small one fresh for local mode.
+        self._prev_small = None
+        best = found.sorted_by_score()[:1] if len(found) else found
+        t = time.perf_counter()
+        target = None
+        if len(best):
+            box = best.xyxy[0]
+            center = ((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0)
+            self.region.start(center, (box[2] - box[0], box[3] - box[1]))
+            target = self._target(frame, best, measured=True, region=None)
+        self.switcher.after(hit=bool(len(best)))
+        timings["switcher"] = _ms(t)
+        return GladResult(frame.index, frame.t_capture_ns, GLOBAL, best, Detections.concat(candidates), target, None, timings)
+
+    def _local(self, frame: Frame, grey: np.ndarray, timings: Dict[str, float]) -> GladResult:
+        t = time.perf_counter()
+        homography = self._ego_motion(grey)
+        dt_s = (frame.t_capture_ns - self._prev_t_ns) / 1e9 if self._prev_t_ns is not None else 1.0 / 30
+        predicted = self.region.predict(homography, dt_s)
+        region = self.region.region_xyxy(frame.size_wh)
+        timings["region"] = _ms(t)
+        x1, y1, x2, y2 = (int(v) for v in region)
+        found = Detections.empty()
+        candidates = []
+        lad = self.models.local_appearance
+        if lad is not None and self.cfg.local.appearance.enabled:
+            t = time.perf_counter()
+            found = lad.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1))
+            timings[LAD] = _ms(t)
+            candidates.append(found)
+        if not len(found) and self.cfg.local.motion.enabled and self._prev_grey is not None:
+            t = time.perf_counter()
+            motion = self.lmd.detect(self._prev_grey[y1:y2, x1:x2], grey[y1:y2, x1:x2], offset_xy=(x1, y1))
+            timings[LMD] = _ms(t)
+            found = self._classify(frame.image, motion.detections, timings)
+            candidates.append(motion.detections)
+        t = time.perf_counter()
+        best = self._pick(found, predicted)
+        if len(best):
+            box = best.xyxy[0]
+            self.region.hit(((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0), (box[2] - box[0], box[3] - box[1]))
+            target = self._target(frame, best, measured=True, region=region)
+        else:
+            self.region.miss()
+            target = Target(
+                frame.index, frame.t_capture_ns, self.region.predicted_box(), 0.0, "", measured=False, region_xyxy=region
+            )
+        mode_next = self.switcher.after(hit=bool(len(best)))
+        if mode_next == GLOBAL and not len(best):
+            self.region.reset()
+            target = None
+        timings["switcher"] = _ms(t)
+        return GladResult(frame.index, frame.t_capture_ns, LOCAL, best, Detections.concat(candidates), target, region, timings)
+
+    # --- helpers ----------------------------------------------------------------------------
+
+    def _ego_motion(self, grey: np.ndarray) -> np.ndarray:
+        """Frame-to-frame camera homography (full-frame pixels), estimated on a small copy."""
+        scale = min(1.0, _EGO_MOTION_WIDTH_PX / float(grey.shape[1]))
+        small = grey if scale == 1.0 else cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        prev_small = self._prev_small
+        if prev_small is None and self._prev_grey is not None:
+            prev_small = (
+                self._prev_grey
+                if scale == 1.0
+                else cv2.resize(self._prev_grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+            )
+        self._prev_small = small
+        if prev_small is None or prev_small.shape != small.shape:
+            return np.eye(3)
+        estimate: HomographyEstimate = estimate_homography(prev_small, small, self.cfg.global_.motion)
+        if not estimate.ok:
+            return np.eye(3)
+        s = np.diag([scale, scale, 1.0])
+        return np.linalg.inv(s) @ estimate.matrix @ s
+
+    def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float]) -> Detections:
+        classifier = self.models.classifier
+        if not len(dets) or classifier is None or not self.cfg.classifier.enabled:
+            return dets
+        t = time.perf_counter()
+        kept = classifier.filter(image, dets)
+        timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
+        return kept
+
+    def _pick(self, found: Detections, predicted_xy) -> Detections:
+        """Local choice among several boxes: by confidence or by distance to the prediction."""
+        if not len(found):
+            return found
+        distance = np.hypot(*(found.centers - np.asarray(predicted_xy, np.float32)).T)
+        if self.cfg.switcher.max_jump_px > 0:
+            keep = distance <= self.cfg.switcher.max_jump_px
+            found, distance = found[keep], distance[keep]
+            if not len(found):
+                return found
+        order = np.argsort(distance) if self.cfg.switcher.pick == "distance" else np.argsort(-found.score, kind="stable")
+        return found[order[:1]]
+
+    @staticmethod
+    def _target(frame: Frame, best: Detections, measured: bool, region) -> Target:
+        return Target(
+            frame.index,
+            frame.t_capture_ns,
+            best.xyxy[0].copy(),
+            float(best.score[0]),
+            str(best.module[0]),
+            measured=measured,
+            region_xyxy=region,
+        )
+
+
+def _ms(t_start: float) -> float:
+    return (time.perf_counter() - t_start) * 1000.0

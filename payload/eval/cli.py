@@ -1,0 +1,215 @@
+"""``glad-payload eval``: score detections CSVs against labels, or run GLAD over clips and score.
+
+Two modes:
+- ``--dets A.csv B.csv --labels A.csv B.csv``: score existing detections, pairwise.
+- ``--split val[,negatives_val]`` (Halmstad splits.json) or ``--clips a.mp4 ...``: run the
+  detector over each clip, then score.
+Both print one row per clip and a POOLED row (counts summed, detections ranked together).
+"""
+
+import json
+import logging
+import math
+import os
+import sys
+from dataclasses import dataclass
+from typing import Callable, Dict, List, Mapping, Optional, Sequence
+
+from payload.errors import DataError
+from payload.eval.labels import load_labels
+from payload.eval.metrics import ClipScore, pool, score_clip
+from payload.records import read_detections_csv
+from payload.types import Detections
+
+log = logging.getLogger(__name__)
+
+SPLITS_REL = os.path.join("shared", "data", "halmstad", "splits.json")
+LABEL_SUFFIXES = (".csv", ".txt")
+
+DetectFn = Callable[[str], Mapping[int, Detections]]
+
+
+@dataclass(frozen=True)
+class ClipSpec:
+    """A clip to run the detector on and the labels to score it against."""
+
+    name: str
+    video: str
+    labels: str
+
+
+class UsageError(Exception):
+    """Wrong arguments or missing shared data: one line, exit status 2."""
+
+
+def find_splits(explicit: Optional[str] = None) -> str:
+    """splits.json: ``explicit``, else ../shared/... beside the repository root or the cwd."""
+    if explicit:
+        if not os.path.isfile(explicit):
+            raise UsageError("--splits %s: no such file" % explicit)
+        return explicit
+    repo = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    candidates = [os.path.join(os.path.dirname(repo), SPLITS_REL),
+                  os.path.join(os.path.dirname(os.getcwd()), SPLITS_REL),
+                  os.path.join(os.getcwd(), SPLITS_REL)]
+    for path in candidates:
+        if os.path.isfile(path):
+            return path
+    raise UsageError("Halmstad splits.json not found (looked in %s); pass --splits PATH" % ", ".join(sorted(set(candidates))))
+
+
+def split_clips(splits_path: str, split: str) -> List[ClipSpec]:
+    """The clips of one or more comma-separated splits, e.g. ``val,negatives_val``."""
+    try:
+        with open(splits_path, encoding="utf-8") as handle:
+            splits = json.load(handle)
+    except (OSError, ValueError) as exc:
+        raise UsageError("%s: cannot read splits: %s" % (splits_path, exc)) from None
+    data_dir = os.path.dirname(os.path.abspath(splits_path))
+    clips = []
+    for key in [s.strip() for s in split.split(",") if s.strip()]:
+        if not isinstance(splits, dict) or not isinstance(splits.get(key), list):
+            raise UsageError("--split %s: no such split in %s (have: %s)"
+                             % (key, splits_path, ", ".join(sorted(splits)) if isinstance(splits, dict) else "none"))
+        for name in splits[key]:
+            videos = [os.path.join(data_dir, sub, "%s.mp4" % name) for sub in ("visible", "ir")]
+            video = next((v for v in videos if os.path.isfile(v)), None)
+            if video is None:
+                raise UsageError("clip %s of split %s: no video at %s" % (name, key, " or ".join(videos)))
+            labels = os.path.join(data_dir, "labels", "%s.csv" % name)
+            if not os.path.isfile(labels):
+                raise UsageError("clip %s of split %s: no labels at %s" % (name, key, labels))
+            clips.append(ClipSpec(name, video, labels))
+    if not clips:
+        raise UsageError("--split %r names no clips" % split)
+    return clips
+
+
+def _labels_for(video: str, given: Sequence[str], position: int) -> str:
+    if len(given) > 1:
+        return given[position]
+    stem = os.path.splitext(os.path.basename(video))[0]
+    folder = os.path.dirname(os.path.abspath(video))
+    candidates = []
+    if len(given) == 1:
+        if os.path.isdir(given[0]):
+            candidates += [os.path.join(given[0], stem + s) for s in LABEL_SUFFIXES]
+        else:
+            candidates.append(given[0])
+    candidates += [os.path.join(folder, stem + s) for s in LABEL_SUFFIXES]
+    candidates += [os.path.join(os.path.dirname(folder), "labels", stem + s) for s in LABEL_SUFFIXES]
+    candidates.append(os.path.join(folder, stem, "gt", "gt.txt"))
+    for path in candidates:
+        if os.path.isfile(path):
+            return path
+    if len(given) == 1 and os.path.isdir(given[0]) and any(n.lower().endswith(".xml") for n in os.listdir(given[0])):
+        return given[0]  # a Pascal VOC folder: the labels of this one clip
+    raise UsageError("%s: no labels found (looked for %s)" % (video, ", ".join(candidates)))
+
+
+def clips_from_paths(videos: Sequence[str], labels: Sequence[str]) -> List[ClipSpec]:
+    """``--clips`` videos with labels given one per clip, in one folder, or found beside them."""
+    if len(labels) > 1 and len(labels) != len(videos):
+        raise UsageError("--clips has %d videos but --labels has %d paths (give one per clip, or one folder)"
+                         % (len(videos), len(labels)))
+    clips = []
+    for i, video in enumerate(videos):
+        if not os.path.isfile(video):
+            raise UsageError("--clips %s: no such file" % video)
+        clips.append(ClipSpec(os.path.splitext(os.path.basename(video))[0], video, _labels_for(video, labels, i)))
+    return clips
+
+
+def score_detection_files(dets: Sequence[str], labels: Sequence[str]) -> List[ClipScore]:
+    if len(dets) != len(labels):
+        raise UsageError("--dets has %d files but --labels has %d (give one label file or folder per CSV)"
+                         % (len(dets), len(labels)))
+    scores = []
+    for dets_path, labels_path in zip(dets, labels):
+        gt = load_labels(labels_path)
+        found = read_detections_csv(dets_path)
+        scores.append(score_clip(os.path.splitext(os.path.basename(dets_path))[0], found, gt))
+    return scores
+
+
+def score_clips(clips: Sequence[ClipSpec], detect: DetectFn) -> List[ClipScore]:
+    """Run ``detect`` (video path -> frame -> Detections, every frame present) and score each clip."""
+    labels = {clip.name: load_labels(clip.labels) for clip in clips}  # bad labels fail before any detection
+    scores = []
+    for clip in clips:
+        found = detect(clip.video)
+        frames = max(found) + 1 if found else 0
+        score = score_clip(clip.name, found, labels[clip.name], frames=frames)
+        log.info("eval clip=%s frames=%d gt=%d tp=%d fp=%d", clip.name, score.frames, score.gt, score.tp, score.fp)
+        scores.append(score)
+    return scores
+
+
+def _cell(value: float, percent: bool = False) -> str:
+    if isinstance(value, float) and math.isnan(value):
+        return "-"
+    return "%.1f" % (100.0 * value) if percent else "%.3f" % value
+
+
+def format_table(scores: Sequence[ClipScore], pooled: Optional[ClipScore] = None) -> str:
+    """Fixed-column text table: one row per clip, then the pooled row."""
+    rows = list(scores) + ([pooled] if pooled is not None else [])
+    width = max([len("clip")] + [len(s.name) for s in rows])
+    header = "%-*s %7s %6s %6s %6s %6s %6s %6s %6s %6s %6s" % (
+        width, "clip", "frames", "gt", "tp", "fp", "fn", "P", "R", "F", "AP", "det%")
+    lines = [header, "-" * len(header)]
+    for i, s in enumerate(rows):
+        if pooled is not None and i == len(rows) - 1:
+            lines.append("-" * len(header))
+        lines.append("%-*s %7d %6d %6d %6d %6d %6s %6s %6s %6s %6s" % (
+            width, s.name, s.frames, s.gt, s.tp, s.fp, s.fn, _cell(s.precision), _cell(s.recall),
+            _cell(s.f1), _cell(s.ap), _cell(s.frames_with_detections, percent=True)))
+    return "\n".join(lines)
+
+
+def write_json(path: str, scores: Sequence[ClipScore], pooled: ClipScore) -> None:
+    try:
+        with open(path, "w", encoding="utf-8") as handle:
+            json.dump({"iou_match": 0.5, "clips": [s.as_dict() for s in scores], "pooled": pooled.as_dict()},
+                      handle, indent=2)
+            handle.write("\n")
+    except OSError as exc:
+        raise DataError("%s: cannot write JSON: %s" % (path, exc.strerror or exc)) from None
+
+
+def _glad_detector(args) -> DetectFn:
+    # Imported here: scoring existing CSVs must not need the models or onnxruntime.
+    from payload.config import load_config
+    from payload.detect_cmd import run_detect
+
+    cfg = load_config(args.config)
+
+    def detect(video: str) -> Dict[int, Detections]:
+        return run_detect(video, cfg, limit=args.limit, progress=not args.no_progress)
+
+    return detect
+
+
+def main_eval(args) -> int:
+    try:
+        if args.split or args.clips:
+            if args.split and args.clips:
+                raise UsageError("give --split or --clips, not both")
+            if args.dets:
+                raise UsageError("--dets scores existing CSVs; it does not combine with --split/--clips")
+            clips = (split_clips(find_splits(args.splits), args.split) if args.split
+                     else clips_from_paths(args.clips, args.labels))
+            scores = score_clips(clips, _glad_detector(args))
+        elif args.dets:
+            scores = score_detection_files(args.dets, args.labels)
+        else:
+            raise UsageError("nothing to score: give --dets with --labels, --split NAME or --clips VIDEO...")
+    except UsageError as exc:
+        print("glad-payload eval: %s" % exc, file=sys.stderr)
+        return 2
+    pooled = pool(scores)
+    print(format_table(scores, pooled))
+    if args.json:
+        write_json(args.json, scores, pooled)
+        print("wrote %s" % args.json)
+    return 0

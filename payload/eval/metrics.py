@@ -1,0 +1,166 @@
+"""The paper's evaluation protocol (from Dogfight): TP at IoU > 0.5, P/R/F and 11-point AP.
+
+Per frame, detections are matched greedily, highest score first, each to the unmatched
+ground-truth box it overlaps most; a match needs IoU strictly above 0.5. AP is the 11-point
+interpolated area under the precision-recall curve of all detections of the clip ranked by
+score (pooled clips: of all their detections together). Undefined ratios (precision with no
+detection, recall or AP with no ground truth) are NaN, never a made-up 0 or 1.
+"""
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, Mapping, Optional, Sequence
+
+import numpy as np
+
+from payload.types import Detections
+
+IOU_MATCH = 0.5  # a true positive needs IoU strictly greater than this
+RECALL_POINTS = np.arange(11) / 10.0  # exact k/10, compared with exact-rational recalls
+
+
+def iou_matrix(a_xyxy: np.ndarray, b_xyxy: np.ndarray) -> np.ndarray:
+    """(n, m) IoU between two sets of ``xyxy`` boxes (areas as continuous w*h, no +1)."""
+    a = np.asarray(a_xyxy, np.float64).reshape(-1, 4)
+    b = np.asarray(b_xyxy, np.float64).reshape(-1, 4)
+    lt = np.maximum(a[:, None, :2], b[None, :, :2])
+    rb = np.minimum(a[:, None, 2:], b[None, :, 2:])
+    inter = np.prod(np.clip(rb - lt, 0.0, None), axis=2)
+    area_a = np.prod(np.clip(a[:, 2:] - a[:, :2], 0.0, None), axis=1)
+    area_b = np.prod(np.clip(b[:, 2:] - b[:, :2], 0.0, None), axis=1)
+    union = area_a[:, None] + area_b[None, :] - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+def match_frame(dets: Detections, gt_xyxy: np.ndarray, iou_match: float = IOU_MATCH) -> np.ndarray:
+    """Boolean per detection (in ``dets`` order): True when it is a true positive."""
+    is_tp = np.zeros(len(dets), bool)
+    gt = np.asarray(gt_xyxy, np.float64).reshape(-1, 4)
+    if not len(dets) or not len(gt):
+        return is_tp
+    iou = iou_matrix(dets.xyxy, gt)
+    taken = np.zeros(len(gt), bool)
+    for i in np.argsort(-dets.score, kind="stable"):
+        free = np.where(taken, -1.0, iou[i])
+        j = int(np.argmax(free))
+        if free[j] > iou_match:
+            taken[j] = True
+            is_tp[i] = True
+    return is_tp
+
+
+def ap_11point(ranked_tp: np.ndarray, gt: int) -> float:
+    """11-point interpolated AP of detections already ranked by descending score."""
+    if gt <= 0:
+        return math.nan
+    ranked_tp = np.asarray(ranked_tp, bool)
+    if not len(ranked_tp):
+        return 0.0
+    cum_tp = np.cumsum(ranked_tp)
+    precision = cum_tp / np.arange(1, len(ranked_tp) + 1)
+    recall = cum_tp / float(gt)
+    total = 0.0
+    for r in RECALL_POINTS:
+        reached = precision[recall >= r]
+        total += float(reached.max()) if len(reached) else 0.0
+    return total / len(RECALL_POINTS)
+
+
+def _ratio(num: int, den: int) -> float:
+    return num / den if den > 0 else math.nan
+
+
+@dataclass(frozen=True)
+class ClipScore:
+    """Scores of one clip (or of pooled clips). Ratios are NaN where undefined."""
+
+    name: str
+    frames: int
+    gt: int
+    tp: int
+    fp: int
+    fn: int
+    precision: float
+    recall: float
+    f1: float
+    ap: float
+    frames_with_detections: float  # fraction of frames with at least one detection (false alarms on negatives)
+    # Every detection's score and TP flag, kept so that pooling ranks all detections together.
+    det_score: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32), repr=False, compare=False)
+    det_tp: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), repr=False, compare=False)
+
+    @classmethod
+    def from_ranked(cls, name: str, frames: int, gt: int, det_score: np.ndarray, det_tp: np.ndarray,
+                    frames_detected: int) -> "ClipScore":
+        order = np.argsort(-np.asarray(det_score, np.float32), kind="stable")
+        det_score = np.asarray(det_score, np.float32)[order]
+        det_tp = np.asarray(det_tp, bool)[order]
+        tp = int(det_tp.sum())
+        fp = int(len(det_tp) - tp)
+        precision = _ratio(tp, tp + fp)
+        recall = _ratio(tp, gt)
+        if math.isnan(precision) or math.isnan(recall):
+            f1 = math.nan
+        else:
+            f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+        return cls(
+            name=name, frames=int(frames), gt=int(gt), tp=tp, fp=fp, fn=int(gt) - tp,
+            precision=precision, recall=recall, f1=f1, ap=ap_11point(det_tp, gt),
+            frames_with_detections=_ratio(frames_detected, frames),
+            det_score=det_score, det_tp=det_tp,
+        )
+
+    @property
+    def frames_detected(self) -> int:
+        return 0 if self.frames == 0 else int(round(self.frames_with_detections * self.frames))
+
+    def as_dict(self) -> Dict[str, object]:
+        """Plain JSON-ready fields; NaN becomes None."""
+        out: Dict[str, object] = {}
+        for key in ("name", "frames", "gt", "tp", "fp", "fn", "precision", "recall", "f1", "ap",
+                    "frames_with_detections"):
+            value = getattr(self, key)
+            out[key] = None if isinstance(value, float) and math.isnan(value) else value
+        return out
+
+
+def score_clip(name: str, dets: Mapping[int, Detections], labels: Mapping[int, np.ndarray],
+               frames: Optional[int] = None, iou_match: float = IOU_MATCH) -> ClipScore:
+    """Score one clip: ``dets`` and ``labels`` map 0-based frame index -> boxes.
+
+    ``frames`` is the clip length (frames at or past it are ignored on both sides, e.g. after
+    ``--limit``); by default the highest frame index either side knows + 1.
+    """
+    known = set(dets) | set(labels)
+    if frames is None:
+        frames = max(known) + 1 if known else 0
+    known = {index for index in known if index < frames}
+    scores, flags = [], []
+    gt = 0
+    frames_detected = 0
+    empty = np.zeros((0, 4), np.float32)
+    for index in sorted(known):
+        gt_xyxy = labels.get(index, empty)
+        gt += len(gt_xyxy)
+        frame_dets = dets.get(index)
+        if frame_dets is None or not len(frame_dets):
+            continue
+        frames_detected += 1
+        flags.append(match_frame(frame_dets, gt_xyxy, iou_match))
+        scores.append(frame_dets.score)
+    det_score = np.concatenate(scores) if scores else np.zeros(0, np.float32)
+    det_tp = np.concatenate(flags) if flags else np.zeros(0, bool)
+    return ClipScore.from_ranked(name, frames, gt, det_score, det_tp, frames_detected)
+
+
+def pool(scores: Sequence[ClipScore], name: str = "POOLED") -> ClipScore:
+    """One score over several clips: counts summed and every detection ranked together."""
+    return ClipScore.from_ranked(
+        name,
+        frames=sum(s.frames for s in scores),
+        gt=sum(s.gt for s in scores),
+        det_score=np.concatenate([s.det_score for s in scores]) if scores else np.zeros(0, np.float32),
+        det_tp=np.concatenate([s.det_tp for s in scores]) if scores else np.zeros(0, bool),
+        frames_detected=sum(s.frames_detected for s in scores),
+    )

@@ -1,0 +1,164 @@
+"""Pixel -> bearing: pure functions from a box centre to azimuth/elevation angles.
+
+Frames and signs (all right-handed):
+
+- camera: x right, y down, z forward (OpenCV).
+- body: FRD, x forward, y right, z down (MAVLink/aircraft).
+- level: the body frame with roll and pitch removed; x is the vehicle heading projected on
+  the horizon, z points down along gravity (yaw-referenced, so not north-referenced).
+
+Azimuth is ``atan2(y, x)`` (positive to the right), elevation ``atan2(-z, hypot(x, y))``
+(positive up), both in radians.
+
+Pixel coordinates are continuous, as in ``Detections.xyxy``: pixel column i covers
+[i, i + 1), so the image centre of a W-wide image is at x = W / 2. OpenCV camera matrices
+put pixel *centres* on integers, so half a pixel is subtracted before undistorting.
+"""
+
+import math
+from dataclasses import dataclass
+from typing import Optional, Sequence, Tuple
+
+import cv2
+import numpy as np
+
+from payload.config import CameraConfig, MountConfig
+from payload.types import Bearing, Target
+
+#: Fixed axis swap camera (x right, y down, z forward) -> body FRD for a camera looking
+#: straight ahead: body x = camera z, body y = camera x, body z = camera y.
+_CAM_TO_BODY_ZERO_MOUNT = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+# undistortPoints iterates a fixed 5 times by default, which leaves pixel-level errors at the
+# edge of wide-angle lenses; these criteria converge to well under 1e-3 px.
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """Vehicle attitude (MAVLink ATTITUDE): Z-Y-X Euler angles of body FRD in NED, radians."""
+
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+
+
+def rotation_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
+    """R = Rz(yaw) @ Ry(pitch) @ Rx(roll): rotates vectors from the rotated frame to the reference frame."""
+    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    return rz @ ry @ rx
+
+
+def mount_rotation(roll_deg: float = 0.0, pitch_deg: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
+    """Camera -> body FRD rotation (3x3) for a camera mounted at roll/pitch/yaw relative to the body.
+
+    Zero mount = camera looking forward along body x, image right = body right. The angles
+    are applied like a vehicle attitude (Z-Y-X): yaw_deg=90 looks right, pitch_deg=-90 looks
+    straight down, roll_deg turns the image about the optical axis.
+    """
+    r_mount = rotation_zyx(math.radians(roll_deg), math.radians(pitch_deg), math.radians(yaw_deg))
+    return r_mount @ _CAM_TO_BODY_ZERO_MOUNT
+
+
+def mount_from_config(mount: MountConfig) -> np.ndarray:
+    """``mount_rotation`` for the ``camera.mount`` config section."""
+    return mount_rotation(mount.roll_deg, mount.pitch_deg, mount.yaw_deg)
+
+
+def body_to_level(attitude: Attitude) -> np.ndarray:
+    """Rotation body FRD -> level frame: roll and pitch removed, heading kept as x."""
+    return rotation_zyx(attitude.roll_rad, attitude.pitch_rad, 0.0)
+
+
+def az_el(vector: Sequence[float]) -> Tuple[float, float]:
+    """(azimuth, elevation) in radians of a FRD-style vector: az positive right, el positive up."""
+    x, y, z = (float(c) for c in vector)
+    return math.atan2(y, x), math.atan2(-z, math.hypot(x, y))
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole intrinsics (OpenCV convention) plus optional OpenCV distortion coefficients."""
+
+    matrix: np.ndarray  # 3x3, pixel centres on integers
+    distortion: Optional[np.ndarray]  # k1, k2, p1, p2[, k3...] or None
+    image_wh: Tuple[int, int]
+
+    @classmethod
+    def from_hfov(cls, hfov_deg: float, image_wh: Tuple[int, int]) -> "CameraModel":
+        """Square pixels, principal point at the image centre, no distortion."""
+        w, h = int(image_wh[0]), int(image_wh[1])
+        f_px = (w / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+        k = np.array([[f_px, 0.0, (w - 1) / 2.0], [0.0, f_px, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return cls(k, None, (w, h))
+
+    @classmethod
+    def from_config(cls, cfg: CameraConfig, image_wh: Tuple[int, int]) -> "CameraModel":
+        """``camera.matrix`` [fx, fy, cx, cy] when set (OpenCV calibration values), else ``camera.hfov_deg``."""
+        if cfg.matrix is None:
+            model = cls.from_hfov(cfg.hfov_deg, image_wh)
+            k = model.matrix
+        else:
+            fx, fy, cx, cy = cfg.matrix
+            k = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        dist = None if cfg.distortion is None else np.asarray(cfg.distortion, np.float64)
+        return cls(k, dist, (int(image_wh[0]), int(image_wh[1])))
+
+    @property
+    def hfov_rad(self) -> float:
+        """Horizontal field of view edge to edge (ignoring distortion)."""
+        w = self.image_wh[0]
+        fx, cx = self.matrix[0, 0], self.matrix[0, 2]
+        return math.atan2(cx + 0.5, fx) + math.atan2(w - 0.5 - cx, fx)
+
+    def pixel_to_ray_cam(self, u: float, v: float) -> np.ndarray:
+        """Unit ray (camera frame) through the continuous pixel position (u, v)."""
+        src = np.array([[[u - 0.5, v - 0.5]]], np.float64)
+        if self.distortion is None:
+            xy = cv2.undistortPoints(src, self.matrix, None)
+        elif hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
+            xy = cv2.undistortPointsIter(src, self.matrix, self.distortion, None, None, _UNDISTORT_CRITERIA)
+        else:  # OpenCV 5 folded the criteria into undistortPoints
+            xy = cv2.undistortPoints(src, self.matrix, self.distortion, None, None, None, _UNDISTORT_CRITERIA)
+        ray = np.array([xy[0, 0, 0], xy[0, 0, 1], 1.0])
+        return ray / np.linalg.norm(ray)
+
+    def ray_cam_to_pixel(self, ray_cam: Sequence[float]) -> Tuple[float, float]:
+        """Inverse of ``pixel_to_ray_cam`` (with distortion): the continuous pixel position of a ray."""
+        pts = np.asarray(ray_cam, np.float64).reshape(1, 1, 3)
+        dist = np.zeros(5) if self.distortion is None else self.distortion
+        uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.matrix, dist)
+        return float(uv[0, 0, 0]) + 0.5, float(uv[0, 0, 1]) + 0.5
+
+
+def bearing_for(
+    target: Target,
+    camera: CameraModel,
+    mount: np.ndarray,
+    attitude: Optional[Attitude],
+) -> Bearing:
+    """The bearing to the target's box centre.
+
+    ``mount`` is the camera -> body rotation from ``mount_rotation``/``mount_from_config``;
+    ``attitude`` is the vehicle attitude at the frame's capture time (None: level angles None).
+    Confidence is the target's score.
+    """
+    u, v = target.center
+    ray_body = np.asarray(mount, np.float64) @ camera.pixel_to_ray_cam(u, v)
+    az_body, el_body = az_el(ray_body)
+    az_level = el_level = None
+    if attitude is not None:
+        az_level, el_level = az_el(body_to_level(attitude) @ ray_body)
+    return Bearing(
+        t_capture_ns=int(target.t_capture_ns),
+        az_body_rad=az_body,
+        el_body_rad=el_body,
+        az_level_rad=az_level,
+        el_level_rad=el_level,
+        confidence=float(target.score),
+    )

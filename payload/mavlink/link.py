@@ -1,0 +1,566 @@
+"""The MAVLink connection to the autopilot: the only module that imports pymavlink.
+
+``MavlinkLink(cfg)`` owns one background thread that opens the connection (retrying with
+back-off), receives, sends our HEARTBEAT, keeps time in sync with the autopilot, asks for
+its ATTITUDE stream and answers commands. The caller (the service loop) only calls
+``send_message`` / ``attitude_at`` / ``time_usec_for`` and reads ``status``; none of them
+blocks or raises when the link or the autopilot is gone (sends are counted as dropped).
+
+Autopilot: the first HEARTBEAT with ``autopilot != MAV_AUTOPILOT_INVALID`` from our own
+system id (``mavlink.system_id``). Lost after ``autopilot_timeout_s`` without one (logged
+once); found again when heartbeats come back, and then ATTITUDE is requested again.
+
+Time: ``offset_ns`` = autopilot boot time - our monotonic clock, from TIMESYNC round trips
+(1 Hz, the round trip with the smallest delay of the last few wins). Without TIMESYNC
+answers a coarse offset comes from the ``time_boot_ms`` of received ATTITUDE/SYSTEM_TIME
+(biased by the link latency). ``time_usec_for`` uses it; with no estimate at all it falls
+back to our monotonic microseconds.
+
+Commands (COMMAND_LONG addressed to our system id and component id, or broadcast 0), only
+from a system id in ``mavlink.command_sysids``; others are ignored and logged:
+
+- ``MAV_CMD_USER_1`` (31010), ``param1 = 1``: enable detection -> ACK ACCEPTED
+- ``MAV_CMD_USER_1`` (31010), ``param1 = 0``: disable detection -> ACK ACCEPTED
+  (other param1 values -> ACK DENIED)
+- any other command addressed to our component -> ACK UNSUPPORTED. Broadcast commands
+  (target_component 0) we do not handle get no ACK, so that we never answer for the
+  autopilot.
+
+Signing (``mavlink.signing``): outgoing messages are signed; unsigned or wrongly signed
+incoming messages are dropped (counted in ``status.rejected``), except RADIO_STATUS from
+telemetry radios, which cannot sign.
+"""
+
+import bisect
+import logging
+import math
+import os
+import select
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Deque, Dict, Optional, Set, Tuple
+
+from payload.config import MavlinkConfig
+from payload.errors import ConfigError
+from payload.geometry import Attitude
+
+# Must be set before pymavlink is imported, or the MAVLink 1 dialect loads and messages with
+# ids > 255 (CAMERA_TRACKING_IMAGE_STATUS) cannot be sent.
+os.environ["MAVLINK20"] = "1"
+os.environ.setdefault("MAVLINK_DIALECT", "ardupilotmega")
+
+from pymavlink import mavutil  # noqa: E402
+
+if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":
+    # pymavlink was imported elsewhere before us without MAVLINK20: load the v2 dialect now.
+    mavutil.set_dialect(os.environ["MAVLINK_DIALECT"])
+
+log = logging.getLogger(__name__)
+
+_M = mavutil.mavlink
+_CMD_DETECTION = _M.MAV_CMD_USER_1
+_ATTITUDE_RETRY_S = 1.5
+_ATTITUDE_MAX_TRIES = 5
+_TIMESYNC_PERIOD_S = 1.0
+_TIMESYNC_SAMPLES = 8
+_ATTITUDE_BUFFER = 512
+_ATTITUDE_HOLD_NS = 100_000_000  # nearest sample is used this far outside the buffered span
+_CONNECTION_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:")
+
+
+def constant(name: str, default: Optional[int] = None) -> int:
+    """A MAVLink enum value by name (e.g. ``CAMERA_TRACKING_MODE_RECTANGLE``) from the loaded dialect."""
+    value = getattr(_M, name, default)
+    if value is None:
+        raise KeyError(f"MAVLink constant {name} is not in this pymavlink dialect")
+    return int(value)
+
+
+def load_signing_key(path: str) -> bytes:
+    """The 32-byte signing key from a file holding 32 raw bytes or 64 hex characters."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError as exc:
+        raise ConfigError([f"mavlink.signing.key_file={path}: cannot read: {exc.strerror or exc}"]) from None
+    if len(data) == 32:
+        return data
+    text = data.strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    raise ConfigError(
+        [
+            f"mavlink.signing.key_file={path}: expected 32 raw bytes or 64 hex characters, got {len(data)} bytes"
+        ]
+    )
+
+
+def _check_connection(connection: str) -> None:
+    if connection.startswith(_CONNECTION_PREFIXES):
+        host_port = connection.split(":", 1)[1]
+        parts = host_port.rsplit(":", 1)
+        if len(parts) == 2 and parts[0] and parts[1].isdigit() and 0 < int(parts[1]) < 65536:
+            return
+        scheme = connection.split(":")[0]
+        raise ConfigError([f"mavlink.connection={connection!r}: expected {scheme}:HOST:PORT with a port in 1..65535"])
+    if connection.startswith("/") or connection.upper().startswith("COM"):
+        return  # serial device
+    raise ConfigError(
+        [
+            f"mavlink.connection={connection!r}: expected a serial device (/dev/ttyTHS0)"
+            " or udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT"
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class LinkStatus:
+    """A snapshot of the link, for logs and the service's health summary."""
+
+    connected: bool  # the transport (serial port / socket) is open
+    autopilot_seen: bool  # an autopilot heartbeat arrived within autopilot_timeout_s
+    autopilot_age_s: Optional[float]  # seconds since its last heartbeat; None = never heard
+    sent: int  # messages handed to the transport
+    dropped: int  # send calls that could not be sent (no connection, no peer yet, write error)
+    detection_enabled: bool
+    attitude_age_s: Optional[float]  # seconds since the last ATTITUDE; None = none yet
+    time_offset_ns: Optional[int]  # autopilot boot time - our monotonic time; None = unknown
+    time_synced: bool  # offset from TIMESYNC round trips (False: coarse or none)
+    rejected: int  # incoming messages dropped for a missing/bad signature
+    commands_ignored: int  # COMMAND_LONGs from system ids not in command_sysids
+    connect_failures: int  # failed attempts to open the connection (retried with back-off)
+
+
+class _TcpClosed(ConnectionError):
+    pass
+
+
+def _raise_closed(*_args):
+    raise _TcpClosed("connection closed by peer")
+
+
+class MavlinkLink:
+    """One MAVLink connection run by a background thread; see the module doc for the protocol."""
+
+    def __init__(self, cfg: MavlinkConfig):
+        _check_connection(cfg.connection)
+        self.cfg = cfg
+        self._key = load_signing_key(cfg.signing.key_file) if cfg.signing.enabled and cfg.signing.key_file else None
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._thread: Optional[threading.Thread] = None
+        self._conn: Any = None
+        self._broken = False
+        self._sent = 0
+        self._dropped = 0
+        self._rejected_before = 0  # from connections already closed
+        self._commands_ignored = 0
+        self._connect_failures = 0
+        self._detection_enabled = True
+        self._ignored_logged: Set[Any] = set()
+        self._other_sysid_logged: Set[Any] = set()
+        # autopilot
+        self._ap_id: Optional[Tuple[int, int]] = None
+        self._ap_alive = False
+        self._ap_last_ns: Optional[int] = None
+        self._att_requests = 0
+        self._att_next_request_ns = 0
+        self._att_acked = False
+        # ATTITUDE samples in the autopilot's time base: (t_boot_ns, roll, pitch, yaw)
+        self._att: Deque[Tuple[int, float, float, float]] = deque(maxlen=_ATTITUDE_BUFFER)
+        self._att_last_rx_ns: Optional[int] = None
+        # time sync
+        self._ts_pending: Dict[int, int] = {}
+        self._ts_samples: Deque[Tuple[int, int]] = deque(maxlen=_TIMESYNC_SAMPLES)
+        self._coarse: Deque[int] = deque(maxlen=64)
+        self._next_hb_ns = 0
+        self._next_ts_ns = 0
+
+    # --- public API --------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the background thread; returns at once (the connection is opened there)."""
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="mavlink-link", daemon=True)
+        self._thread.start()
+        log.info(
+            "mavlink link starting: connection=%s sysid=%d compid=%d type=%s signing=%s",
+            self.cfg.connection, self.cfg.system_id, self.cfg.component_id, self.cfg.component_type,
+            "on" if self._key else "off",
+        )
+
+    def stop(self) -> None:
+        """Stop the thread and close the connection; safe to call twice."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        with self._lock:
+            self._close()
+
+    def __enter__(self) -> "MavlinkLink":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def detection_enabled(self) -> bool:
+        """False after a disable command (MAV_CMD_USER_1 param1=0) until an enable command."""
+        return self._detection_enabled
+
+    @property
+    def status(self) -> LinkStatus:
+        now = time.monotonic_ns()
+        with self._lock:
+            offset, synced = self._offset()
+            rejected = self._rejected_before
+            if self._conn is not None:
+                rejected += self._conn.mav.signing.reject_count
+            return LinkStatus(
+                connected=self._conn is not None,
+                autopilot_seen=self._ap_alive,
+                autopilot_age_s=None if self._ap_last_ns is None else (now - self._ap_last_ns) / 1e9,
+                sent=self._sent,
+                dropped=self._dropped,
+                detection_enabled=self._detection_enabled,
+                attitude_age_s=None if self._att_last_rx_ns is None else (now - self._att_last_rx_ns) / 1e9,
+                time_offset_ns=offset,
+                time_synced=synced,
+                rejected=rejected,
+                commands_ignored=self._commands_ignored,
+                connect_failures=self._connect_failures,
+            )
+
+    def send_message(self, msg_type: str, /, **fields: Any) -> bool:
+        """Send one MAVLink message by name, e.g. ``send_message("DEBUG_VECT", name=b"TGT_BRG", ...)``.
+
+        Never blocks or raises on a dead link: returns False and counts a drop instead.
+        """
+        msg = getattr(_M, f"MAVLink_{msg_type.lower()}_message")(**fields)
+        return self._send(msg)
+
+    def time_usec_for(self, t_monotonic_ns: int) -> int:
+        """A time on our monotonic clock as autopilot time (us since its boot) when known, else our us."""
+        with self._lock:
+            offset, _ = self._offset()
+        if offset is None:
+            return int(t_monotonic_ns) // 1000
+        return max(0, (int(t_monotonic_ns) + offset) // 1000)
+
+    def attitude_at(self, t_monotonic_ns: int) -> Optional[Attitude]:
+        """The vehicle attitude at a frame's capture time, interpolated from recent ATTITUDE messages.
+
+        None without a time offset, without samples, or when the time is more than 100 ms outside
+        the buffered samples (stale or future). Yaw is unwrapped before interpolating.
+        """
+        with self._lock:
+            offset, _ = self._offset()
+            samples = list(self._att)
+        if offset is None or not samples:
+            return None
+        t = int(t_monotonic_ns) + offset
+        times = [s[0] for s in samples]
+        i = bisect.bisect_left(times, t)
+        if i == 0 or i == len(samples):
+            nearest = samples[0] if i == 0 else samples[-1]
+            if abs(t - nearest[0]) > _ATTITUDE_HOLD_NS:
+                return None
+            return Attitude(nearest[1], nearest[2], nearest[3])
+        t0, r0, p0, y0 = samples[i - 1]
+        t1, r1, p1, y1 = samples[i]
+        a = (t - t0) / float(t1 - t0) if t1 > t0 else 0.0
+        dyaw = math.remainder(y1 - y0, 2 * math.pi)
+        yaw = math.remainder(y0 + a * dyaw, 2 * math.pi)
+        return Attitude(r0 + a * (r1 - r0), p0 + a * (p1 - p0), yaw)
+
+    # --- sending -----------------------------------------------------------------------------
+
+    def _send(self, msg: Any) -> bool:
+        with self._lock:
+            conn = self._conn
+            if conn is None or self._broken or (getattr(conn, "udp_server", False) and not conn.clients):
+                self._dropped += 1
+                return False
+            try:
+                conn.mav.send(msg)
+            except (OSError, ConnectionError) as exc:
+                self._dropped += 1
+                self._broken = True
+                log.warning("mavlink write failed: connection=%s error=%s", self.cfg.connection, exc)
+                return False
+            self._sent += 1
+            return True
+
+    def _send_heartbeat(self) -> None:
+        if self.cfg.component_type == "camera":
+            mav_type = _M.MAV_TYPE_CAMERA
+        else:
+            mav_type = _M.MAV_TYPE_ONBOARD_CONTROLLER
+        state = _M.MAV_STATE_ACTIVE if self._detection_enabled else _M.MAV_STATE_STANDBY
+        self._send(_M.MAVLink_heartbeat_message(mav_type, _M.MAV_AUTOPILOT_INVALID, 0, 0, state, 3))
+
+    def _ack(self, msg: Any, result: int) -> None:
+        self._send(
+            _M.MAVLink_command_ack_message(
+                msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+            )
+        )
+
+    def _request_attitude(self, now_ns: int) -> None:
+        sysid, compid = self._ap_id  # type: ignore[misc]
+        interval_us = 1e6 / self.cfg.attitude_rate_hz
+        self._send(
+            _M.MAVLink_command_long_message(
+                sysid, compid, _M.MAV_CMD_SET_MESSAGE_INTERVAL, self._att_requests,
+                _M.MAVLINK_MSG_ID_ATTITUDE, interval_us, 0, 0, 0, 0, 0,
+            )
+        )
+        self._att_requests += 1
+        self._att_next_request_ns = now_ns + int(_ATTITUDE_RETRY_S * 1e9)
+        log.info("requested ATTITUDE: rate_hz=%.1f try=%d", self.cfg.attitude_rate_hz, self._att_requests)
+
+    # --- the thread ----------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        backoff_s = self.cfg.retry.initial_s
+        failing = False
+        while not self._stop.is_set():
+            if self._conn is None:
+                try:
+                    conn = self._open()
+                except (OSError, ConnectionError, ValueError) as exc:
+                    self._connect_failures += 1
+                    if not failing:
+                        log.warning(
+                            "mavlink connect failed, retrying: connection=%s error=%s", self.cfg.connection, exc
+                        )
+                    failing = True
+                    self._stop.wait(backoff_s)
+                    backoff_s = min(backoff_s * 2, self.cfg.retry.max_s)
+                    continue
+                with self._lock:
+                    self._conn = conn
+                    self._broken = False
+                log.info("mavlink connected: connection=%s", self.cfg.connection)
+                failing = False
+                backoff_s = self.cfg.retry.initial_s
+            try:
+                self._step()
+            except (OSError, ConnectionError) as exc:
+                log.warning("mavlink connection lost, reconnecting: connection=%s error=%s", self.cfg.connection, exc)
+                with self._lock:
+                    self._close()
+                self._stop.wait(backoff_s)
+            except Exception as exc:  # the link must outlive one malformed message or a bug
+                log.error("mavlink thread error, reopening: error=%r", exc, exc_info=True)
+                with self._lock:
+                    self._close()
+                self._stop.wait(backoff_s)
+            if self._broken:
+                with self._lock:
+                    self._close()
+
+    def _open(self) -> Any:
+        kwargs = dict(source_system=self.cfg.system_id, source_component=self.cfg.component_id)
+        if self.cfg.connection.startswith("tcp:"):
+            kwargs.update(retries=0, reconnect_delay=0)
+        conn = mavutil.mavlink_connection(self.cfg.connection, baud=self.cfg.baud, **kwargs)
+        if isinstance(conn, mavutil.mavtcp):
+            # pymavlink prints and spins on a closed TCP socket; turn that into a reconnect here.
+            conn.handle_eof = _raise_closed
+            conn.handle_disconnect = _raise_closed
+        if self._key is not None:
+            conn.setup_signing(self._key, sign_outgoing=True, allow_unsigned_callback=_allow_unsigned)
+        return conn
+
+    def _close(self) -> None:
+        if self._conn is not None:
+            self._rejected_before += self._conn.mav.signing.reject_count
+            try:
+                self._conn.close()
+            except OSError:
+                pass
+            self._conn = None
+            log.info("mavlink connection closed: connection=%s", self.cfg.connection)
+
+    def _step(self) -> None:
+        conn = self._conn
+        fd = getattr(conn, "fd", None)
+        if fd is not None:
+            readable, _, _ = select.select([fd], [], [], 0.02)
+        else:
+            readable = [True]
+            time.sleep(0.005)
+        if readable:
+            with self._lock:
+                for _ in range(200):  # bounded so periodic work keeps its schedule under a flood
+                    msg = conn.recv_msg()
+                    if msg is None:
+                        break
+                    self._handle(msg)
+        with self._lock:
+            self._periodic(time.monotonic_ns())
+
+    def _periodic(self, now_ns: int) -> None:
+        if now_ns >= self._next_hb_ns:
+            self._send_heartbeat()
+            self._next_hb_ns = now_ns + int(1e9 / self.cfg.heartbeat_hz)
+        if self._ap_alive and now_ns - self._ap_last_ns > self.cfg.autopilot_timeout_s * 1e9:
+            self._ap_alive = False
+            log.warning(
+                "autopilot lost: sysid=%d compid=%d silent_s=%.1f (detection continues)",
+                self._ap_id[0], self._ap_id[1], (now_ns - self._ap_last_ns) / 1e9,
+            )
+        if not self._ap_alive:
+            return
+        if self.cfg.timesync and now_ns >= self._next_ts_ns:
+            self._ts_pending[now_ns] = now_ns
+            if len(self._ts_pending) > 16:
+                self._ts_pending.pop(min(self._ts_pending))
+            self._send(_M.MAVLink_timesync_message(0, now_ns))
+            self._next_ts_ns = now_ns + int(_TIMESYNC_PERIOD_S * 1e9)
+        if (
+            self.cfg.attitude_rate_hz > 0
+            and not self._att_acked
+            and self._att_requests < _ATTITUDE_MAX_TRIES
+            and now_ns >= self._att_next_request_ns
+        ):
+            self._request_attitude(now_ns)
+
+    # --- receiving -----------------------------------------------------------------------------
+
+    def _handle(self, msg: Any) -> None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            return
+        now_ns = time.monotonic_ns()
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if kind == "HEARTBEAT":
+            self._on_heartbeat(msg, src, now_ns)
+        elif kind == "COMMAND_LONG":
+            self._on_command(msg)
+        elif src != self._ap_id:
+            if kind == "TIMESYNC" and msg.tc1 == 0:
+                self._send(_M.MAVLink_timesync_message(now_ns, msg.ts1))  # answer whoever asks
+            return
+        elif kind == "ATTITUDE":
+            t_boot_ns = int(msg.time_boot_ms) * 1_000_000
+            if self._att and t_boot_ns <= self._att[-1][0]:
+                if t_boot_ns < self._att[-1][0] - 1_000_000_000:
+                    self._att.clear()  # autopilot time went back: it rebooted
+                else:
+                    return
+            self._att.append((t_boot_ns, float(msg.roll), float(msg.pitch), float(msg.yaw)))
+            self._att_last_rx_ns = now_ns
+            self._coarse.append(t_boot_ns - now_ns)
+            self._att_acked = True  # it streams: no need to ask again
+        elif kind == "SYSTEM_TIME":
+            self._coarse.append(int(msg.time_boot_ms) * 1_000_000 - now_ns)
+        elif kind == "TIMESYNC":
+            self._on_timesync(msg, now_ns)
+        elif kind == "COMMAND_ACK" and msg.command == _M.MAV_CMD_SET_MESSAGE_INTERVAL:
+            self._att_acked = msg.result == _M.MAV_RESULT_ACCEPTED
+            level = logging.INFO if self._att_acked else logging.WARNING
+            log.log(level, "ATTITUDE request answered: result=%d", msg.result)
+            if not self._att_acked:
+                self._att_requests = _ATTITUDE_MAX_TRIES  # refused: do not insist
+
+    def _on_heartbeat(self, msg: Any, src: Tuple[int, int], now_ns: int) -> None:
+        if msg.autopilot == _M.MAV_AUTOPILOT_INVALID:
+            return  # a GCS, camera, companion computer...
+        if src[0] != self.cfg.system_id:
+            if src[0] not in self._other_sysid_logged:
+                self._other_sysid_logged.add(src[0])
+                log.warning(
+                    "ignoring autopilot heartbeat: sysid=%d compid=%d, expected mavlink.system_id=%d",
+                    src[0], src[1], self.cfg.system_id,
+                )
+            return
+        if self._ap_id is not None and src != self._ap_id and self._ap_alive:
+            return  # a second autopilot component: stay with the first while it lives
+        self._ap_last_ns = now_ns
+        if not self._ap_alive:
+            first = self._ap_id is None
+            self._ap_id = src
+            self._ap_alive = True
+            # a returning autopilot may have rebooted: forget its clock and attitude
+            self._ts_samples.clear()
+            self._ts_pending.clear()
+            self._coarse.clear()
+            self._att.clear()
+            self._att_requests = 0
+            self._att_acked = False
+            self._att_next_request_ns = 0
+            self._next_ts_ns = 0
+            log.info(
+                "autopilot %s: sysid=%d compid=%d autopilot=%d type=%d",
+                "found" if first else "back", src[0], src[1], msg.autopilot, msg.type,
+            )
+            self._periodic(now_ns)
+
+    def _on_timesync(self, msg: Any, now_ns: int) -> None:
+        if msg.tc1 == 0:
+            self._send(_M.MAVLink_timesync_message(now_ns, msg.ts1))
+            return
+        sent_ns = self._ts_pending.pop(int(msg.ts1), None)
+        if sent_ns is None:
+            return
+        rtt_ns = now_ns - sent_ns
+        offset_ns = int(msg.tc1) - (sent_ns + now_ns) // 2
+        current, synced = self._offset()
+        if synced and abs(offset_ns - current) > 50_000_000 + rtt_ns:
+            log.info("autopilot clock jumped: offset_ms=%.1f -> %.1f", current / 1e6, offset_ns / 1e6)
+            self._ts_samples.clear()
+        self._ts_samples.append((rtt_ns, offset_ns))
+
+    def _offset(self) -> Tuple[Optional[int], bool]:
+        if self._ts_samples:
+            return min(self._ts_samples)[1], True
+        if self._coarse:
+            # arrival is always later than sending: the least-delayed sample is the best bound
+            return max(self._coarse), False
+        return None, False
+
+    def _on_command(self, msg: Any) -> None:
+        if msg.target_system not in (0, self.cfg.system_id):
+            return
+        if msg.target_component not in (0, self.cfg.component_id):
+            return
+        src_sys = msg.get_srcSystem()
+        if src_sys not in self.cfg.command_sysids:
+            self._commands_ignored += 1
+            key = (src_sys, msg.command)
+            if key not in self._ignored_logged:
+                self._ignored_logged.add(key)
+                log.warning(
+                    "ignoring command from sysid=%d command=%d: not in mavlink.command_sysids=%s",
+                    src_sys, msg.command, list(self.cfg.command_sysids),
+                )
+            return
+        if msg.command == _CMD_DETECTION:
+            if msg.param1 in (0.0, 1.0):
+                self._detection_enabled = msg.param1 == 1.0
+                log.info(
+                    "detection %s by command: sysid=%d compid=%d",
+                    "enabled" if self._detection_enabled else "disabled", src_sys, msg.get_srcComponent(),
+                )
+                self._ack(msg, _M.MAV_RESULT_ACCEPTED)
+                self._send_heartbeat()  # the state shows in system_status at once
+            else:
+                self._ack(msg, _M.MAV_RESULT_DENIED)
+        elif msg.target_component != 0:
+            self._ack(msg, _M.MAV_RESULT_UNSUPPORTED)
+
+
+def _allow_unsigned(_mav: Any, msg_id: int) -> bool:
+    return msg_id == _M.MAVLINK_MSG_ID_RADIO_STATUS
+

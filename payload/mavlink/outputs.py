@@ -1,0 +1,166 @@
+"""Target and bearing -> MAVLink messages, one switch per message in ``mavlink.outputs``.
+
+Per processed frame the service calls ``TargetPublisher.publish(target, bearing, image_wh)``:
+
+- CAMERA_TRACKING_IMAGE_STATUS (``tracking_image_status``): tracking_mode RECTANGLE,
+  rec_top_x/y and rec_bottom_x/y = the box normalised to 0..1 of the image, point_x/y = its
+  centre, radius NaN, target_data IN_STATUS. tracking_status is ACTIVE for a measured target
+  and ACTIVE|COASTING (the MAVLink flag "target is obscured and is being predicted") when the
+  box is the search region's prediction. No target: IDLE, all fields NaN, sent when the
+  target is lost and then at most once a second.
+- DEBUG_VECT "TGT_BRG" (``debug_vect``): x = azimuth, y = elevation (rad), z = confidence,
+  time_usec = the frame's capture time in the autopilot's time base (``link.time_usec_for``).
+  Frame per ``debug_vect_frame``: body (FRD) or level; in level frame it is withheld while
+  no attitude is known. Not sent without a target.
+- LANDING_TARGET (``landing_target``, opt-in): frame MAV_FRAME_BODY_FRD, angle_x = azimuth
+  (positive right), angle_y = -elevation (positive down, like image y), distance 0 = unknown,
+  size 0. A precision-landing autopilot may steer toward it: a WARNING is logged at start.
+
+``max_rate_hz`` caps target messages per second (0 = every processed frame). While detection
+is disabled by command (``link.detection_enabled`` False) nothing is sent.
+"""
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Optional, Tuple
+
+from payload.config import MavlinkOutputsConfig
+from payload.mavlink.link import MavlinkLink, constant
+from payload.types import Bearing, Target
+
+log = logging.getLogger(__name__)
+
+_NAN = float("nan")
+_IDLE_PERIOD_NS = 1_000_000_000
+_ACTIVE = constant("CAMERA_TRACKING_STATUS_FLAGS_ACTIVE", 1)
+_COASTING = constant("CAMERA_TRACKING_STATUS_FLAGS_COASTING", 8)  # missing in older pymavlink
+_IDLE = constant("CAMERA_TRACKING_STATUS_FLAGS_IDLE", 0)
+_MODE_RECTANGLE = constant("CAMERA_TRACKING_MODE_RECTANGLE", 2)
+_MODE_NONE = constant("CAMERA_TRACKING_MODE_NONE", 0)
+_DATA_IN_STATUS = constant("CAMERA_TRACKING_TARGET_DATA_IN_STATUS", 4)
+_FRAME_BODY_FRD = constant("MAV_FRAME_BODY_FRD", 12)
+_LANDING_VISION = constant("LANDING_TARGET_TYPE_VISION_OTHER", 3)
+DEBUG_VECT_NAME = b"TGT_BRG"
+
+
+@dataclass
+class PublisherStats:
+    frames: int = 0  # publish() calls
+    messages: int = 0  # messages handed to the link
+    rate_limited: int = 0  # frames skipped by max_rate_hz
+    disabled: int = 0  # frames skipped while detection is disabled by command
+    no_attitude: int = 0  # DEBUG_VECT withheld: level frame asked, no attitude
+
+
+class TargetPublisher:
+    """Sends the per-frame target messages selected in ``mavlink.outputs`` over a ``MavlinkLink``."""
+
+    def __init__(self, link: MavlinkLink, cfg: MavlinkOutputsConfig):
+        self.link = link
+        self.cfg = cfg
+        self.stats = PublisherStats()
+        self._last_target_ns: Optional[int] = None
+        self._last_idle_ns: Optional[int] = None
+        self._had_target = False
+        self._warned_level = False
+        if cfg.landing_target:
+            log.warning(
+                "mavlink.outputs.landing_target is on: a precision-landing autopilot may steer "
+                "toward the detected drone; disable it unless that is intended"
+            )
+
+    def publish(self, target: Optional[Target], bearing: Optional[Bearing], image_wh: Tuple[int, int]) -> int:
+        """Send this frame's messages; returns how many were sent (0 when skipped or the link is down)."""
+        self.stats.frames += 1
+        if not self.link.detection_enabled:
+            self.stats.disabled += 1
+            return 0
+        now_ns = time.monotonic_ns()
+        if target is None:
+            return self._publish_idle(now_ns)
+        if self.cfg.max_rate_hz > 0 and self._last_target_ns is not None:
+            if now_ns - self._last_target_ns < 1e9 / self.cfg.max_rate_hz:
+                self.stats.rate_limited += 1
+                return 0
+        self._last_target_ns = now_ns
+        self._had_target = True
+        sent = 0
+        if self.cfg.tracking_image_status:
+            sent += self._tracking_status(target, image_wh)
+        if bearing is not None and self.cfg.debug_vect:
+            sent += self._debug_vect(bearing)
+        if bearing is not None and self.cfg.landing_target:
+            sent += self._landing_target(bearing)
+        self.stats.messages += sent
+        return sent
+
+    def _publish_idle(self, now_ns: int) -> int:
+        if not self.cfg.tracking_image_status:
+            return 0
+        due = self._last_idle_ns is None or now_ns - self._last_idle_ns >= _IDLE_PERIOD_NS
+        if not (self._had_target or due):
+            return 0
+        self._had_target = False
+        self._last_idle_ns = now_ns
+        ok = self.link.send_message(
+            "CAMERA_TRACKING_IMAGE_STATUS",
+            tracking_status=_IDLE, tracking_mode=_MODE_NONE, target_data=0,
+            point_x=_NAN, point_y=_NAN, radius=_NAN,
+            rec_top_x=_NAN, rec_top_y=_NAN, rec_bottom_x=_NAN, rec_bottom_y=_NAN,
+        )
+        self.stats.messages += int(ok)
+        return int(ok)
+
+    def _tracking_status(self, target: Target, image_wh: Tuple[int, int]) -> int:
+        w, h = float(image_wh[0]), float(image_wh[1])
+        x1, y1, x2, y2 = (float(c) for c in target.xyxy)
+        cx, cy = target.center
+
+        def nx(x: float) -> float:
+            return min(max(x / w, 0.0), 1.0)
+
+        def ny(y: float) -> float:
+            return min(max(y / h, 0.0), 1.0)
+
+        status = _ACTIVE if target.measured else _ACTIVE | _COASTING
+        return int(
+            self.link.send_message(
+                "CAMERA_TRACKING_IMAGE_STATUS",
+                tracking_status=status, tracking_mode=_MODE_RECTANGLE, target_data=_DATA_IN_STATUS,
+                point_x=nx(cx), point_y=ny(cy), radius=_NAN,
+                rec_top_x=nx(x1), rec_top_y=ny(y1), rec_bottom_x=nx(x2), rec_bottom_y=ny(y2),
+            )
+        )
+
+    def _debug_vect(self, bearing: Bearing) -> int:
+        if self.cfg.debug_vect_frame == "level":
+            if bearing.az_level_rad is None or bearing.el_level_rad is None:
+                self.stats.no_attitude += 1
+                if not self._warned_level:
+                    self._warned_level = True
+                    log.warning("DEBUG_VECT withheld: debug_vect_frame=level but no ATTITUDE from the autopilot yet")
+                return 0
+            az, el = bearing.az_level_rad, bearing.el_level_rad
+        else:
+            az, el = bearing.az_body_rad, bearing.el_body_rad
+        return int(
+            self.link.send_message(
+                "DEBUG_VECT",
+                name=DEBUG_VECT_NAME, time_usec=self.link.time_usec_for(bearing.t_capture_ns),
+                x=float(az), y=float(el), z=float(bearing.confidence),
+            )
+        )
+
+    def _landing_target(self, bearing: Bearing) -> int:
+        if not (math.isfinite(bearing.az_body_rad) and math.isfinite(bearing.el_body_rad)):
+            return 0
+        return int(
+            self.link.send_message(
+                "LANDING_TARGET",
+                time_usec=self.link.time_usec_for(bearing.t_capture_ns), target_num=0, frame=_FRAME_BODY_FRD,
+                angle_x=float(bearing.az_body_rad), angle_y=float(-bearing.el_body_rad),
+                distance=0.0, size_x=0.0, size_y=0.0, type=_LANDING_VISION,
+            )
+        )

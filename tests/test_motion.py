@@ -1,0 +1,323 @@
+"""The GLAD motion detector on synthetic frame pairs with known answers (built here with NumPy/OpenCV)."""
+
+import cv2
+import numpy as np
+import pytest
+
+from payload.config import MotionConfig
+from payload.detect.motion import (
+    HomographyEstimate,
+    MotionDetector,
+    estimate_homography,
+    flow_spread,
+    merge_boxes,
+)
+
+W, H = 320, 240
+
+
+def texture(h, w, seed, sigma, lo, hi):
+    """Smoothed random texture with values stretched to [lo, hi]."""
+    t = np.random.default_rng(seed).integers(0, 256, (h, w)).astype(np.float32)
+    t = cv2.GaussianBlur(t, (0, 0), sigma)
+    return cv2.normalize(t, None, lo, hi, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+def iou(a, b):
+    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+
+
+class Scene:
+    """A camera panning over textured ground by ``pan_xy`` px between two frames.
+
+    ``ground`` is a canvas larger than the view: things painted on it move with the ground.
+    """
+
+    MARGIN = 40
+
+    def __init__(self, pan_xy=(3.0, -2.0), seed=1):
+        self.pan_xy = pan_xy
+        m = self.MARGIN
+        self.ground = texture(H + 2 * m, W + 2 * m, seed, 3.0, 60, 200)
+
+    def view(self, canvas, shift_xy):
+        m = self.MARGIN
+        warp = np.float32([[1, 0, -m - shift_xy[0]], [0, 1, -m - shift_xy[1]]])
+        return cv2.warpAffine(canvas, warp, (W, H), flags=cv2.INTER_LINEAR)
+
+    def frames(self, canvas_prev=None, canvas_cur=None):
+        prev = self.view(self.ground if canvas_prev is None else canvas_prev, (0.0, 0.0))
+        cur = self.view(self.ground if canvas_cur is None else canvas_cur, self.pan_xy)
+        return prev, cur
+
+    def ground_to_cur(self, x, y):
+        """Ground canvas pixel -> its pixel in the current frame."""
+        return x - self.MARGIN - self.pan_xy[0], y - self.MARGIN - self.pan_xy[1]
+
+
+MOVER = texture(36, 36, 5, 1.5, 0, 90)  # a dark textured object, larger than the LK window
+
+
+def paste(img, patch, x, y):
+    out = img.copy()
+    out[y : y + patch.shape[0], x : x + patch.shape[1]] = patch
+    return out
+
+
+def mover_scene():
+    """Frames with a mover flying (+9, +5) px in the image while the camera pans; its cur xyxy."""
+    scene = Scene()
+    prev, cur = scene.frames()
+    prev = paste(prev, MOVER, 140, 100)
+    cur = paste(cur, MOVER, 149, 105)
+    return prev, cur, (149.0, 105.0, 185.0, 141.0)
+
+
+# --- homography -----------------------------------------------------------------------------
+
+
+def test_homography_recovers_known_warp():
+    prev = texture(H, W, 3, 2.0, 0, 255)
+    angle = np.deg2rad(1.5)
+    truth = np.array(
+        [
+            [1.02 * np.cos(angle), -np.sin(angle), 4.0],
+            [np.sin(angle), 1.02 * np.cos(angle), -3.0],
+            [2e-5, -1e-5, 1.0],
+        ]
+    )
+    cur = cv2.warpPerspective(prev, truth, (W, H), flags=cv2.INTER_LINEAR)
+    est = estimate_homography(prev, cur, MotionConfig())
+    assert est.ok
+    assert est.tracked >= 0.8 * 30 * 20 and est.inliers >= 0.8 * est.tracked
+    corners = np.array([[[0, 0]], [[W, 0]], [[W, H]], [[0, H]]], np.float64)
+    err = np.linalg.norm(
+        cv2.perspectiveTransform(corners, est.matrix) - cv2.perspectiveTransform(corners, truth), axis=2
+    )
+    assert err.max() < 0.5, err.ravel()
+    assert 3.0 < est.mean_shift_px < 10.0
+
+
+def test_homography_flat_image_gives_identity():
+    flat = np.full((H, W), 128, np.uint8)
+    est = estimate_homography(flat, flat.copy(), MotionConfig())
+    assert not est.ok
+    assert est.tracked < MotionConfig().min_tracked_points
+    np.testing.assert_array_equal(est.matrix, np.eye(3))
+
+
+def test_homography_rejects_bad_input():
+    with pytest.raises(ValueError, match="differ in size"):
+        estimate_homography(np.zeros((10, 10), np.uint8), np.zeros((10, 12), np.uint8), MotionConfig())
+    with pytest.raises(ValueError, match="2-D uint8"):
+        estimate_homography(np.zeros((10, 10, 3), np.uint8), np.zeros((10, 10, 3), np.uint8), MotionConfig())
+
+
+# --- detection on a moving camera -----------------------------------------------------------
+
+
+def test_moving_object_found_on_moving_ground():
+    prev, cur, truth = mover_scene()
+    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
+    assert result.homography.ok
+    assert not result.too_noisy
+    assert len(result.detections) == 1, result.candidates.xyxy
+    assert iou(result.detections.xyxy[0], truth) > 0.5, result.detections.xyxy
+    assert 0 < result.detections.score[0] <= 1
+    assert result.detections.module[0] == "GMD"
+
+
+def test_static_object_painted_on_ground_is_not_detected():
+    scene = Scene()
+    ground = paste(scene.ground, MOVER, 180, 140)  # moves with the ground
+    prev, cur = scene.frames(ground, ground)
+    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
+    assert result.homography.ok
+    assert len(result.detections) == 0, result.detections.xyxy
+
+
+def test_object_holding_still_in_the_image_moves_relative_to_the_ground():
+    """A chase target matching the camera's motion: image flow 0, flow relative to the ground not."""
+    prev, cur = Scene(pan_xy=(3.0, -2.0)).frames()
+    prev, cur = paste(prev, MOVER, 140, 100), paste(cur, MOVER, 140, 100)
+    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
+    assert len(result.detections) == 1, result.candidates.xyxy
+    assert iou(result.detections.xyxy[0], (140, 100, 176, 136)) > 0.5
+
+
+def test_camera_pan_alone_leaves_no_border_blobs():
+    prev, cur = Scene(pan_xy=(12.0, 7.0)).frames()
+    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
+    assert result.homography.ok
+    assert len(result.candidates) == 0, result.candidates.xyxy
+
+
+def test_jittering_texture_is_rejected_by_motion_classifier():
+    """Leaves/glitter: each 6x6 block of a patch moves its own random way between frames."""
+    scene = Scene()
+    rng = np.random.default_rng(7)
+    x0, y0, side = 150, 110, 48
+    leaves = texture(side + 16, side + 16, 9, 1.2, 0, 255)
+    ground_prev = paste(scene.ground, leaves[8:-8, 8:-8], x0, y0)
+    jittered = np.empty((side, side), np.uint8)
+    for by in range(0, side, 6):
+        for bx in range(0, side, 6):
+            dx, dy = rng.uniform(-4, 4, 2).round().astype(int)
+            jittered[by : by + 6, bx : bx + 6] = leaves[
+                8 + by + dy : 14 + by + dy, 8 + bx + dx : 14 + bx + dx
+            ]
+    ground_cur = paste(scene.ground, jittered, x0, y0)
+    prev, cur = scene.frames(ground_prev, ground_cur)
+    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
+    region = (*scene.ground_to_cur(x0, y0), *scene.ground_to_cur(x0 + side, y0 + side))
+    assert any(iou(box, region) > 0.2 for box in result.candidates.xyxy), result.candidates.xyxy
+    assert len(result.detections) == 0, result.detections.xyxy
+
+
+# --- flow statistics ------------------------------------------------------------------------
+
+
+def test_flow_spread_consistent_vectors():
+    rng = np.random.default_rng(1)
+    flows = np.array([5.0, 2.0]) + rng.normal(0, 0.1, (30, 2))
+    angle, speed, mean = flow_spread(flows)
+    assert angle < 0.01 and speed < 0.05
+    assert mean == pytest.approx(np.hypot(5, 2), abs=0.1)
+
+
+def test_flow_spread_random_vectors():
+    rng = np.random.default_rng(2)
+    theta = rng.uniform(-np.pi, np.pi, 200)
+    speed_px = rng.uniform(0.2, 6, 200)
+    flows = np.stack([np.cos(theta), np.sin(theta)], 1) * speed_px[:, None]
+    angle, speed, _ = flow_spread(flows)
+    assert angle > 0.8 and speed > 0.4
+
+
+def test_flow_spread_is_circular_across_180_deg():
+    theta = np.deg2rad([179.0, -179.0, 178.0, -178.0])  # all pointing left
+    flows = 3.0 * np.stack([np.cos(theta), np.sin(theta)], 1)
+    angle, speed, mean = flow_spread(flows)
+    assert angle < 0.001
+    assert speed == pytest.approx(0.0, abs=1e-9) and mean == pytest.approx(3.0)
+    # the plain (non-circular) statistic of the authors' code would call this scattered
+    assert np.var(np.arctan2(flows[:, 1], flows[:, 0])) > 9
+
+
+def test_flow_spread_empty_and_zero():
+    assert flow_spread(np.zeros((0, 2))) == (1.0, 0.0, 0.0)
+    assert flow_spread(np.zeros((4, 2)))[0] == 1.0
+
+
+# --- blob filtering -------------------------------------------------------------------------
+
+
+def appearing(rects, size_wh=(W, H)):
+    """A flat scene where white rectangles (x, y, w, h) appear between the frames."""
+    prev = np.full((size_wh[1], size_wh[0]), 100, np.uint8)
+    cur = prev.copy()
+    for x, y, w, h in rects:
+        cur[y : y + h, x : x + w] = 255
+    return prev, cur
+
+
+def test_area_and_aspect_limits():
+    cfg = MotionConfig(
+        blur_px=0, close_iterations=0, min_blob_area_px=30, max_blob_area_px=3000, max_aspect=3.0
+    )
+    rects = [
+        (10, 10, 4, 4),  # 16 px: too small
+        (60, 10, 12, 12),  # kept
+        (100, 100, 70, 70),  # 4900 px: too large
+        (10, 200, 40, 8),  # aspect 5: too elongated
+        (250, 150, 24, 10),  # aspect 2.4: kept
+    ]
+    result = MotionDetector(cfg, "GMD").detect(*appearing(rects))
+    boxes = sorted(map(tuple, result.candidates.xyxy.tolist()))
+    assert boxes == [(60, 10, 72, 22), (250, 150, 274, 160)]
+
+
+def test_nearby_boxes_merge_within_d1():
+    cfg = MotionConfig(blur_px=0, close_iterations=0, merge_distance_px=15)
+    near = appearing([(50, 50, 10, 10), (68, 52, 10, 10)])  # 8 px gap
+    far = appearing([(50, 50, 10, 10), (100, 50, 10, 10)])  # 40 px gap
+    det = MotionDetector(cfg, "GMD")
+    assert det.detect(*near).candidates.xyxy.tolist() == [[50, 50, 78, 62]]
+    assert len(det.detect(*far).candidates) == 2
+    det.update_config(MotionConfig(blur_px=0, close_iterations=0, merge_distance_px=0))
+    assert len(det.detect(*near).candidates) == 2
+
+
+def test_merge_boxes_is_transitive_and_uses_gaps():
+    boxes = np.array([[0, 0, 10, 10], [20, 0, 30, 10], [40, 0, 50, 10], [200, 200, 210, 210]], np.float32)
+    merged = merge_boxes(boxes, 15)  # A-B and B-C 10 px apart, A-C 30 px apart
+    assert sorted(merged.tolist()) == [[0, 0, 50, 10], [200, 200, 210, 210]]
+    long_boxes = np.array([[0, 0, 100, 10], [105, 0, 200, 10]], np.float32)  # centres 102 px apart
+    assert merge_boxes(long_boxes, 15).tolist() == [[0, 0, 200, 10]]
+
+
+def test_too_noisy_frame_gives_no_detections():
+    rects = [(5 + 30 * i, 5 + 30 * j, 8, 8) for i in range(10) for j in range(7)]  # 70 blobs
+    result = MotionDetector(MotionConfig(blur_px=0, max_blobs=50), "GMD").detect(*appearing(rects))
+    assert result.too_noisy
+    assert len(result.detections) == 0 and len(result.candidates) == 70
+    result = MotionDetector(MotionConfig(blur_px=0, max_blobs=100), "GMD").detect(*appearing(rects))
+    assert not result.too_noisy and len(result.candidates) == 70
+
+
+def test_threshold_follows_t2_alpha_t_a_beta_t_m():
+    prev, cur, _ = mover_scene()
+    cfg = MotionConfig(t2=5, alpha=1.0, beta=0.5)
+    result = MotionDetector(cfg, "GMD").detect(prev, cur)
+    t_a = np.abs(cur.astype(int) - prev.astype(int)).mean()
+    assert result.threshold == pytest.approx(5 + t_a + 0.5 * result.homography.mean_shift_px, rel=1e-6)
+
+
+# --- local crops ----------------------------------------------------------------------------
+
+
+def test_local_crop_detections_in_full_frame_coordinates():
+    prev, cur, truth = mover_scene()
+    x0, y0 = 90, 60
+    crop = (slice(y0, y0 + 150), slice(x0, x0 + 150))
+    result = MotionDetector(MotionConfig(), "LMD").detect(prev[crop], cur[crop], offset_xy=(x0, y0))
+    assert len(result.detections) == 1
+    assert iou(result.detections.xyxy[0], truth) > 0.5, result.detections.xyxy
+    assert result.detections.module[0] == "LMD"
+    assert all(iou(c, truth) > 0.5 for c in result.candidates.xyxy)
+
+
+def test_full_frame_homography_reused_for_a_crop():
+    prev, cur, truth = mover_scene()
+    full = estimate_homography(prev, cur, MotionConfig())
+    x0, y0 = 90, 60
+    crop = (slice(y0, y0 + 150), slice(x0, x0 + 150))
+    local = full.for_crop((x0, y0))
+    point_crop = np.array([[[20.0, 30.0]]])
+    np.testing.assert_allclose(
+        cv2.perspectiveTransform(point_crop, local.matrix) + [x0, y0],
+        cv2.perspectiveTransform(point_crop + [x0, y0], full.matrix),
+        atol=1e-9,
+    )
+    result = MotionDetector(MotionConfig(), "LMD").detect(prev[crop], cur[crop], (x0, y0), homography=local)
+    assert len(result.detections) == 1 and iou(result.detections.xyxy[0], truth) > 0.5
+
+
+def test_given_homography_is_used_as_is():
+    prev, cur, truth = mover_scene()
+    det = MotionDetector(MotionConfig(), "GMD")
+    est = estimate_homography(prev, cur, det.cfg)
+    result = det.detect(prev, cur, homography=est)
+    assert result.homography is est
+    assert iou(result.detections.xyxy[0], truth) > 0.5
+    # identity on a panning camera: the whole textured ground "moves" and no longer aligns
+    still = det.detect(prev, cur, homography=HomographyEstimate.identity())
+    assert len(still.candidates) != 1 or iou(still.candidates.xyxy[0], truth) < 0.5
+
+
+def test_unknown_module_rejected():
+    with pytest.raises(ValueError, match="GMD"):
+        MotionDetector(MotionConfig(), "XYZ")
