@@ -29,26 +29,32 @@ PAD = 114
 
 
 class Sampler:
-    def __init__(self, size, scale_min, scale_max, neg_frac, seed, extra=None):
+    def __init__(self, size, scale_min, scale_max, neg_frac, seed, extra=None, extra_frac=0.3):
         self.pos = np.load(os.path.join(CACHE, "det_pos.npy"), mmap_mode="r")
         self.pos_xyxy = np.load(os.path.join(CACHE, "det_pos_xyxy.npy"))
         self.neg = np.load(os.path.join(CACHE, "det_neg.npy"), mmap_mode="r")
-        self.extra = extra  # optional (images, xyxy) of further positives, e.g. synthetic scenes
+        self.extra = extra  # optional (images, xyxy) of further crops, e.g. synthetic scenes (NaN xyxy: no drone)
+        self.extra_frac = extra_frac
         self.size, self.smin, self.smax, self.neg_frac = size, scale_min, scale_max, neg_frac
         self.rng = np.random.default_rng(seed)
 
     def one(self):
         rng, t = self.rng, self.size
-        if rng.random() < self.neg_frac:
-            img, box = np.asarray(self.neg[rng.integers(len(self.neg))]), None
-        elif self.extra is not None and rng.random() < 0.3:
+        smin, smax = self.smin, self.smax
+        if self.extra is not None and rng.random() < self.extra_frac:
+            # synthetic 1920x1080 crops: mostly the local regime (native resolution); at the
+            # global 1/3 down-scale their 4-24 px drones shrink to a few pixels
             k = rng.integers(len(self.extra[0]))
             img, box = np.asarray(self.extra[0][k]), self.extra[1][k].copy()
+            box = None if not np.isfinite(box).all() else box
+            smin = max(smin, 0.75)
+        elif rng.random() < self.neg_frac:
+            img, box = np.asarray(self.neg[rng.integers(len(self.neg))]), None
         else:
             k = rng.integers(len(self.pos))
             img, box = np.asarray(self.pos[k]), self.pos_xyxy[k].copy()
         # log-uniform scale: as many down-scaled (global) as native (local) samples
-        s = math.exp(rng.uniform(math.log(self.smin), math.log(self.smax)))
+        s = math.exp(rng.uniform(math.log(smin), math.log(smax)))
         h, w = img.shape[:2]
         nw, nh = max(8, int(round(w * s))), max(8, int(round(h * s)))
         img = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
@@ -144,7 +150,8 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tuning)")
-    ap.add_argument("--synth", default=None, help="npz with extra positives: images [N,S,S,3], xyxy [N,4]")
+    ap.add_argument("--synth", default=None, help="npz with extra crops: images [N,S,S,3], xyxy [N,4] (NaN = no drone)")
+    ap.add_argument("--synth-frac", type=float, default=0.3)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     run = os.path.join(HERE, "runs", args.name)
@@ -166,7 +173,7 @@ def main():
     if args.synth:
         z = np.load(args.synth)
         extra = (z["images"], z["xyxy"])
-    sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra)
+    sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra, extra_frac=args.synth_frac)
     print("params=%d steps=%d batch=%d size=%d" % (count_params(net), args.steps, args.batch, args.size), flush=True)
     net.train()
     t0 = time.time()
