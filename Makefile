@@ -11,7 +11,7 @@ VENV38 ?= .venv38
 PY38 := $(VENV38)/bin/python
 CONSTRAINTS38 ?= constraints/jetson-py38.txt
 
-.PHONY: demo test test38 lint system-deps clean
+.PHONY: demo test test38 test38-floor lint system-deps clean
 
 $(VENV)/.runtime: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -46,9 +46,13 @@ test: system-deps $(VENV)/.dev
 test38: $(VENV38)/.runtime
 	$(PY38) -m pytest -q -ra
 
+# The same on the lowest versions pyproject.toml declares (NumPy 1.17.4 is JetPack 5's system NumPy).
+test38-floor:
+	$(MAKE) test38 VENV38=.venv38-floor CONSTRAINTS38=constraints/jetson-py38-floor.txt
+
 lint: $(VENV)/.dev
 	$(VENV)/bin/ruff check payload tests sitl training bench
 	$(VENV)/bin/vermin --target=3.8- --no-tips --violations --eval-annotations payload/
 
 clean:
-	rm -rf $(VENV) $(VENV38) demo-output
+	rm -rf $(VENV) $(VENV38) .venv38-floor demo-output
