@@ -117,7 +117,8 @@ class Glad:
             timings[GMD] = _ms(t)
             found = self._classify(frame.image, motion.detections, timings)
             candidates.append(motion.detections)
-        # The motion pass sets its own previous frame; keep the small one fresh for local mode.
+        # The small ego-motion copy is only kept up to date in local mode; the first local frame
+        # after a global one rebuilds it from the previous full grey frame.
         self._prev_small = None
         best = found.sorted_by_score()[:1] if len(found) else found
         t = time.perf_counter()
