@@ -48,7 +48,7 @@ test: system-deps $(VENV)/.dev
 test38: $(VENV38)/.runtime
 	$(PY38) -m pytest -q -ra
 
-# The same on the lowest versions pyproject.toml declares (NumPy 1.17.4 is JetPack 5's system NumPy).
+# The same on the lowest versions pyproject.toml declares (NumPy 1.21, onnxruntime 1.12, pydantic 2.0, OpenCV 4.5.4).
 test38-floor:
 	$(MAKE) test38 VENV38=.venv38-floor CONSTRAINTS38=constraints/jetson-py38-floor.txt
 
