@@ -355,4 +355,6 @@ def test_split_runs_glad_end_to_end(halmstad_dir, capsys):
     out = capsys.readouterr()
     assert rc == 0, out.err
     rows = [line.split() for line in out.out.splitlines() if line.startswith(("V_DRONE", "POOLED"))]
-    assert len(rows) == 6 and all(row[1] == "2" for row in rows[:5])
+    with open(os.path.join(halmstad_dir, "splits.json")) as fh:
+        n_val = len(json.load(fh)["val"])
+    assert len(rows) == n_val + 1 and all(row[1] == "2" for row in rows[:n_val])
