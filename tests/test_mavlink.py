@@ -558,15 +558,16 @@ def test_fake_autopilot_follows_the_synthetic_scene_camera(fakes, tmp_path):
                  15.0, "1 s of scene attitude")
         checked = 0
         for _ in range(20):
-            t_ns = time.monotonic_ns() - 200_000_000
+            t_ns = time.monotonic_ns() - 600_000_000  # well inside the buffer even when the fake lags
             i = int((t_ns - fake.start_ns) / 1e9 * 30)
             att = link.attitude_at(t_ns)
-            if att is None or i + 3 > len(rpy):
+            if att is None or i + 6 > len(rpy):
                 time.sleep(0.013)
                 continue
             # ATTITUDE (50 Hz) samples a 30 fps step sequence: the interpolated value lies within
-            # the frame's neighbours (+-2 frames: the fake's scene clock jitters by a frame on a loaded machine)
-            near = np.array(rpy[max(i - 2, 0):i + 3])
+            # the frame's neighbours (+-5 frames: the fake renders the scene to know its attitude and falls
+            # a few frames behind on a loaded machine; the default trajectory would still be far outside)
+            near = np.array(rpy[max(i - 5, 0):i + 6])
             got = np.array([att.roll_rad, att.pitch_rad, att.yaw_rad])
             assert np.all(got >= near.min(axis=0) - 1e-4) and np.all(got <= near.max(axis=0) + 1e-4), (i, got, near)
             checked += 1
