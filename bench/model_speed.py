@@ -47,16 +47,16 @@ def main():
     for name, path, input_wh, frame_hw in cases:
         model = OnnxModel(path, backend=args.backend, threads=args.threads, warmup_hw=(input_wh[1], input_wh[0]))
         x = np.random.default_rng(0).random((1, 3, input_wh[1], input_wh[0]), dtype=np.float32)
-        med, p90 = timed(lambda: model.run({"images": x}), args.repeat)
+        med, p90 = timed(lambda m=model, x=x: m.run({"images": x}), args.repeat)
         det = AppearanceDetector(model, AppearanceConfig(confidence=0.1, input_wh=input_wh), "GAD")
         frame = np.random.default_rng(1).integers(0, 255, frame_hw + (3,), dtype=np.uint8)
-        dmed, dp90 = timed(lambda: det.detect(frame), args.repeat)
+        dmed, dp90 = timed(lambda d=det, f=frame: d.detect(f), args.repeat)
         print("%-10s %-20s input=%dx%d run: median %.2f ms p90 %.2f ms | detect(): median %.2f ms p90 %.2f ms"
               % (name, os.path.basename(path), input_wh[0], input_wh[1], med, p90, dmed, dp90))
     clf = OnnxModel(args.classifier_model, backend=args.backend, threads=args.threads, expected_inputs={"patches": 3})
     for n in (1, 8, 32):
         x = np.random.default_rng(0).random((n, 3, 32, 32), dtype=np.float32)
-        med, p90 = timed(lambda: clf.run({"patches": x}), args.repeat)
+        med, p90 = timed(lambda x=x: clf.run({"patches": x}), args.repeat)
         print("classifier %-20s batch=%d run: median %.2f ms p90 %.2f ms" % (os.path.basename(args.classifier_model), n, med, p90))
 
 

@@ -42,12 +42,15 @@ class Sampler:
         rng, t = self.rng, self.size
         smin, smax = self.smin, self.smax
         if self.extra is not None and rng.random() < self.extra_frac:
-            # synthetic 1920x1080 crops: mostly the local regime (native resolution); at the
-            # global 1/3 down-scale their 4-24 px drones shrink to a few pixels
+            # synthetic 1920x1080 crops: drones mostly in the local regime (native resolution; at
+            # the global 1/3 down-scale their 4-24 px shrink to a few pixels), clutter and birds
+            # at every scale so the global detector learns to ignore them
             k = rng.integers(len(self.extra[0]))
             img, box = np.asarray(self.extra[0][k]), self.extra[1][k].copy()
-            box = None if not np.isfinite(box).all() else box
-            smin = max(smin, 0.75)
+            if np.isfinite(box).all():
+                smin = max(smin, 0.6)
+            else:
+                box, smin = None, min(smin, 0.33)
         elif rng.random() < self.neg_frac:
             img, box = np.asarray(self.neg[rng.integers(len(self.neg))]), None
         else:
