@@ -275,12 +275,16 @@ def _flatten(data: Any, prefix: str = "") -> Dict[str, Any]:
     return {prefix: data}
 
 
-def restart_required(old: Config, new: Config) -> List[str]:
-    """Dotted keys that differ between two configs and only take effect after a restart."""
+def changed_keys(old: Config, new: Config) -> List[str]:
+    """Dotted keys whose values differ between two configs."""
     a = _flatten(old.model_dump(by_alias=True))
     b = _flatten(new.model_dump(by_alias=True))
-    changed = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
-    return [k for k in changed if any(k == p or k.startswith(p + ".") for p in RESTART_KEYS)]
+    return sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+
+
+def restart_required(old: Config, new: Config) -> List[str]:
+    """Dotted keys that differ between two configs and only take effect after a restart."""
+    return [k for k in changed_keys(old, new) if any(k == p or k.startswith(p + ".") for p in RESTART_KEYS)]
 
 
 # --- loading and error messages -------------------------------------------------------------

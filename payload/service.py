@@ -19,7 +19,7 @@ from typing import Callable, List, Optional
 
 from payload.capture import open_source
 from payload.capture.base import EndOfStream, FrameSource
-from payload.config import Config, load_config, restart_required
+from payload.config import Config, changed_keys, load_config, restart_required
 from payload.detect.pipeline import Glad, GladResult
 from payload.errors import ConfigError
 from payload.geometry import CameraModel, bearing_for, mount_from_config
@@ -268,6 +268,7 @@ class Service:
             self.notifier.ready()
             return False
         pending: List[str] = restart_required(self.cfg, new)
+        live = [k for k in changed_keys(self.cfg, new) if k not in pending]
         if pending:
             log.warning("reload: these changes need a restart and are not applied yet: %s", ", ".join(pending))
         self.glad.update_config(new.detector)
@@ -275,8 +276,9 @@ class Service:
             self.publisher.cfg = new.mavlink.outputs
         logging.getLogger().setLevel(new.logging.level)
         self._camera = None  # camera intrinsics/mount may have changed
-        self.cfg = new
-        log.info("reload: applied %s", self.config_path)
+        # Restart-only sections keep their running values, so a later reload reports them again.
+        self.cfg = new.model_copy(update={"capture": self.cfg.capture, "outputs": self.cfg.outputs})
+        log.info("reload: applied %s changed=%s", self.config_path, ",".join(live) or "nothing")
         self.notifier.ready()
         return True
 
