@@ -27,6 +27,9 @@ done
 
 # Table V and the baselines on val, then on the synthetic 1080p clip.
 $PY -m payload bench --ablation --split val "${CFG[@]}" --no-progress --json "$OUT/ablation_val.json" > "$OUT/ablation_val.txt"
+$PY -m payload bench --ablation --split negatives_val --limit 100 --rows "GAD+GMD+LAD+LMD" "GLAD (adaptive region)" \
+  "global detector alone (down-scaled)" "tiled full-res (SAHI-style)" "${CFG[@]}" --no-progress \
+  --json "$OUT/ablation_negatives_val.json" > "$OUT/ablation_negatives_val.txt"
 $PY -m payload bench --ablation --clips "$SYN" "${CFG[@]}" --no-progress --json "$OUT/ablation_syn1080.json" > "$OUT/ablation_syn1080.txt"
 uptime >> "$OUT/load.txt"
 

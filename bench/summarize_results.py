@@ -51,14 +51,16 @@ def modules_table(path):
 
 def ablation_table(path):
     d = _load(path)
-    lines = ["| configuration | P | R | F | AP | FPS detector | FPS incl. decode | modules ran (frames) |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
+    lines = ["| configuration | P | R | F | AP | frames with a detection % | FPS detector | FPS incl. decode |"
+             " modules ran (frames) |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
     for r in d["rows"]:
         p = r["pooled"]
         runs = " ".join("%s=%d" % kv for kv in sorted(r["module_runs"].items()))
-        lines.append("| %s | %s | %s | %s | %s | %s | %s | %s |" % (
+        det = p["frames_with_detections"]
+        lines.append("| %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
             r["name"], _f(p["precision"], 3), _f(p["recall"], 3), _f(p["f1"], 3), _f(p["ap"], 3),
-            _f(r["fps_detect"]), _f(r["fps_end_to_end"]), runs))
+            _f(None if det is None else 100 * det), _f(r["fps_detect"]), _f(r["fps_end_to_end"]), runs))
     return "\n".join(lines)
 
 
@@ -74,7 +76,7 @@ def main():
         if os.path.isfile(path):
             print("\n## modules %s\n" % name)
             print(modules_table(path))
-    for name in ("ablation_val.json", "ablation_syn1080.json"):
+    for name in ("ablation_val.json", "ablation_negatives_val.json", "ablation_syn1080.json"):
         path = os.path.join(args.folder, name)
         if os.path.isfile(path):
             print("\n## %s\n" % name)

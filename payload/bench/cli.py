@@ -61,15 +61,16 @@ def format_profile(report) -> str:
 def format_ablation(results) -> str:
     """One row per configuration: pooled P/R/F/AP, FPS, and how often each module ran."""
     width = max([len("configuration")] + [len(r.row.name) for r in results])
-    header = "%-*s %6s %6s %6s %6s %6s %6s %6s %8s %8s  %s" % (
-        width, "configuration", "frames", "tp", "fp", "P", "R", "F", "AP", "fps_det", "fps_e2e", "modules ran (frames)")
+    header = "%-*s %6s %6s %6s %6s %6s %6s %6s %6s %8s %8s  %s" % (
+        width, "configuration", "frames", "tp", "fp", "P", "R", "F", "AP", "det%", "fps_det", "fps_e2e",
+        "modules ran (frames)")
     lines = [header, "-" * len(header)]
     for r in results:
         p = r.pooled
         runs = " ".join("%s=%d" % (k, v) for k, v in sorted(r.module_runs.items()))
-        lines.append("%-*s %6d %6d %6d %6s %6s %6s %6s %8s %8s  %s" % (
+        lines.append("%-*s %6d %6d %6d %6s %6s %6s %6s %6s %8s %8s  %s" % (
             width, r.row.name, r.frames, p.tp, p.fp, _f(p.precision, 3), _f(p.recall, 3), _f(p.f1, 3),
-            _f(p.ap, 3), _f(r.fps_detect), _f(r.fps_end_to_end), runs or "-"))
+            _f(p.ap, 3), _f(100.0 * p.frames_with_detections), _f(r.fps_detect), _f(r.fps_end_to_end), runs or "-"))
     return "\n".join(lines)
 
 
