@@ -176,3 +176,10 @@ def test_bench_on_missing_clip_is_one_line_error(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "/nonexistent/clip.mp4" in err[0]
 
+
+
+def test_bench_without_a_clip_renders_the_configured_synthetic_scene(synth, capsys):
+    _, config_path, _ = synth
+    assert main(["bench", "-c", config_path, "--frames", "4"]) == 0
+    text = capsys.readouterr().out
+    assert "SYN_3_320x256.mp4 (320x256, 4 frames)" in text and "fps decode only" in text
