@@ -48,6 +48,12 @@ def _demo(args) -> int:
     return main_demo(args)
 
 
+def _bench(args) -> int:
+    from payload.bench.cli import main_bench
+
+    return main_bench(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="glad-payload",
@@ -92,6 +98,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, default=0, help="only the first N frames of each clip (0 = all)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_eval)
+
+    p = sub.add_parser("bench", help="speed profile of a clip (per module, FPS, latency) or --ablation (Table V + baselines)")
+    p.add_argument("source", nargs="?", default=None,
+                   help="video file or image folder (default: render the synthetic scene of capture.synthetic)")
+    p.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
+    p.add_argument("--frames", type=int, default=0,
+                   help="frames to profile (0 = the whole clip; the synthetic clip has 150 unless given)")
+    p.add_argument("--runner", choices=("glad", "global", "tiled"), default="glad",
+                   help="GLAD, or a baseline: the global detector alone, or tiled full-resolution inference")
+    p.add_argument("--json", default=None, help="also write the report as JSON here")
+    p.add_argument("--ablation", action="store_true", help="score the Table V configurations and the baselines")
+    p.add_argument("--rows", nargs="*", default=None, help="ablation: only these rows, by name")
+    p.add_argument("--split", default=None, help="ablation: clips of a split of splits.json, e.g. val")
+    p.add_argument("--splits", default=None, help="splits.json (default: ../shared/data/halmstad/splits.json)")
+    p.add_argument("--clips", nargs="*", default=[], help="ablation: video files (labels beside or in --labels)")
+    p.add_argument("--labels", nargs="*", default=[], help="ablation: label file(s) or folder for --clips")
+    p.add_argument("--limit", type=int, default=0, help="ablation: only the first N frames of each clip")
+    p.add_argument("--no-progress", action="store_true", help="no per-row progress lines")
+    p.set_defaults(func=_bench)
 
     p = sub.add_parser("synth", help="render a synthetic air-to-air clip: MP4 + per-frame labels CSV")
     p.add_argument("out", help="output folder")

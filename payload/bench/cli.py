@@ -1,0 +1,173 @@
+"""``glad-payload bench``: the speed profile of one clip, or ``--ablation`` over a split.
+
+  glad-payload bench [CLIP] [--frames N] [--runner glad|global|tiled] [--json OUT.json]
+  glad-payload bench --ablation [--split val | --clips A.mp4 ...] [--limit N] [--rows NAME ...]
+
+Without CLIP (or --split/--clips for the ablation) the bench renders the built-in synthetic
+scene (capture.synthetic in the config: 1920x1080 by default) to a temporary MP4 with its
+labels, so decoding is real video decoding, as from a file.
+"""
+
+import json
+import logging
+import math
+import os
+import sys
+import tempfile
+from typing import List
+
+from payload.config import Config, load_config
+from payload.errors import DataError
+
+log = logging.getLogger(__name__)
+
+SYNTHETIC_FRAMES = 150
+
+
+def _f(value: float, digits: int = 1) -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else "%.*f" % (digits, value)
+
+
+def format_profile(report) -> str:
+    """The profile as a text table (payload.bench.profile.BenchReport)."""
+    w, h = report.size_wh
+    lines = [
+        "bench %s on %s (%dx%d, %d frames)" % (report.runner, report.source, w, h, report.frames),
+        "onnxruntime providers=%s threads=%s cpus=%d load_avg=%s" % (
+            ",".join(report.providers) or "-",
+            report.threads or "default (one per physical core)", report.cpu_count,
+            "/".join("%.1f" % v for v in report.load_avg)),
+        "",
+        "%-11s %6s %7s %9s %9s %9s" % ("module", "runs", "share%", "median_ms", "p95_ms", "mean_ms"),
+    ]
+    for m in report.modules:
+        lines.append("%-11s %6d %7.1f %9.2f %9.2f %9.2f" % (m.name, m.runs, 100 * m.share, m.median_ms, m.p95_ms,
+                                                             m.mean_ms))
+    lines += [
+        "",
+        "fps end-to-end (decode+detect+send)  %8s" % _f(report.fps_end_to_end),
+        "fps without decoding                 %8s" % _f(report.fps_without_decode),
+        "fps decode only (ceiling)            %8s" % _f(report.fps_decode_only),
+        "end-to-end / decode-only             %8s" % _f(report.decode_ratio, 3),
+        "latency capture->MAVLink sent ms     p50 %s  p99 %s  max %s" % (
+            _f(report.latency_p50_ms, 2), _f(report.latency_p99_ms, 2), _f(report.latency_max_ms, 2)),
+        "modes %s; frames with target %d; MAVLink messages sent %d, received on 127.0.0.1 %d" % (
+            " ".join("%s=%d" % kv for kv in sorted(report.modes.items())), report.frames_with_target,
+            report.messages_sent, report.messages_received),
+    ]
+    return "\n".join(lines)
+
+
+def format_ablation(results) -> str:
+    """One row per configuration: pooled P/R/F/AP, FPS, and how often each module ran."""
+    width = max([len("configuration")] + [len(r.row.name) for r in results])
+    header = "%-*s %6s %6s %6s %6s %6s %6s %6s %6s %8s %8s  %s" % (
+        width, "configuration", "frames", "tp", "fp", "P", "R", "F", "AP", "det%", "fps_det", "fps_e2e",
+        "modules ran (frames)")
+    lines = [header, "-" * len(header)]
+    for r in results:
+        p = r.pooled
+        runs = " ".join("%s=%d" % (k, v) for k, v in sorted(r.module_runs.items()))
+        lines.append("%-*s %6d %6d %6d %6s %6s %6s %6s %6s %8s %8s  %s" % (
+            width, r.row.name, r.frames, p.tp, p.fp, _f(p.precision, 3), _f(p.recall, 3), _f(p.f1, 3),
+            _f(p.ap, 3), _f(100.0 * p.frames_with_detections), _f(r.fps_detect), _f(r.fps_end_to_end), runs or "-"))
+    return "\n".join(lines)
+
+
+def _write_json(path: str, data) -> None:
+    try:
+        with open(path, "w", encoding="utf-8") as handle:
+            json.dump(data, handle, indent=2, default=lambda v: None)
+            handle.write("\n")
+    except OSError as exc:
+        raise DataError("%s: cannot write JSON: %s" % (path, exc.strerror or exc)) from None
+
+
+def _nan_to_none(data):
+    if isinstance(data, float) and math.isnan(data):
+        return None
+    if isinstance(data, dict):
+        return {k: _nan_to_none(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_nan_to_none(v) for v in data]
+    return data
+
+
+def synthetic_clip(cfg: Config, out_dir: str, frames: int):
+    """Render the configured synthetic scene to ``out_dir``; returns a ClipSpec (video + labels)."""
+    from payload.eval.cli import ClipSpec
+    from payload.synth.export import export_clip
+    from payload.synth.scene import Scene
+
+    s = cfg.capture.synthetic
+    scene = Scene(seed=s.seed, width=s.width, height=s.height, fps=s.fps, frames=frames,
+                  target_px=tuple(s.target_px), background=s.background)
+    name = "SYN_%d_%dx%d" % (s.seed, s.width, s.height)
+    log.info("bench rendering synthetic clip name=%s frames=%d", name, frames)
+    video, labels = export_clip(scene, out_dir, name)
+    return ClipSpec(name, video, labels)
+
+
+def _ablation_clips(args, cfg: Config, tmp: str) -> List:
+    from payload.eval.cli import UsageError, clips_from_paths, find_splits, split_clips
+
+    if args.split and args.clips:
+        raise UsageError("--ablation: give --split or --clips, not both")
+    if args.split:
+        return split_clips(find_splits(args.splits), args.split)
+    if args.clips:
+        return clips_from_paths(args.clips, args.labels)
+    return [synthetic_clip(cfg, tmp, args.frames or SYNTHETIC_FRAMES)]
+
+
+def main_bench(args) -> int:
+    from payload.eval.cli import UsageError
+
+    cfg = load_config(args.config)
+    with tempfile.TemporaryDirectory(prefix="glad-bench-") as tmp:
+        try:
+            if args.ablation:
+                return _ablation(args, cfg, tmp)
+            return _profile(args, cfg, tmp)
+        except UsageError as exc:
+            print("glad-payload bench: %s" % exc, file=sys.stderr)
+            return 2
+
+
+def _profile(args, cfg: Config, tmp: str) -> int:
+    from payload.bench.profile import run_bench
+    from payload.bench.runners import build_runner
+
+    source = args.source
+    if source is None:
+        source = synthetic_clip(cfg, tmp, args.frames or SYNTHETIC_FRAMES).video
+    elif not os.path.exists(source):
+        raise DataError("bench %s: no such file or folder" % source)
+    runner = build_runner(cfg, args.runner)
+    report = run_bench(cfg, source, runner, runner_name=args.runner, frames=args.frames)
+    print(format_profile(report))
+    if args.json:
+        _write_json(args.json, _nan_to_none(report.as_dict()))
+        print("wrote %s" % args.json)
+    return 0
+
+
+def _ablation(args, cfg: Config, tmp: str) -> int:
+    from payload.bench.ablation import run_row, select_rows
+
+    rows = select_rows(args.rows)
+    clips = _ablation_clips(args, cfg, tmp)
+    results = []
+    for row in rows:
+        results.append(run_row(cfg, row, clips, limit=args.limit))
+        if not args.no_progress:
+            print("done: %s" % row.name, file=sys.stderr)
+    print(format_ablation(results))
+    if args.json:
+        _write_json(args.json, _nan_to_none({
+            "clips": [c.name for c in clips], "limit": args.limit, "iou_match": 0.5,
+            "cpu_count": os.cpu_count(), "load_avg": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+            "rows": [r.as_dict() for r in results]}))
+        print("wrote %s" % args.json)
+    return 0
+

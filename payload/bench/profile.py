@@ -1,0 +1,233 @@
+"""The speed profile of one runner on one clip: per-module time, FPS, capture-to-MAVLink latency.
+
+Two passes over the same frames:
+
+1. decode only: the source read as fast as it goes (the ceiling for end-to-end FPS);
+2. the payload loop: read -> runner.process -> bearing -> TargetPublisher over a real
+   MavlinkLink (``udpout``) to a UDP socket on 127.0.0.1 that the bench itself opens and
+   drains, counting the MAVLink messages that arrive.
+
+Latency of a frame runs from the moment it is asked of the source (so decoding counts, as
+the camera's own delivery would) to the return of the publish call that handed its messages
+to the socket. Frames are not paced: each is read as soon as the previous one is sent.
+"""
+
+import logging
+import os
+import socket
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from payload.capture import EndOfStream, open_source
+from payload.config import Config
+from payload.detect_cmd import recording_config
+from payload.errors import SourceError
+from payload.geometry import CameraModel, bearing_for, mount_from_config
+
+log = logging.getLogger(__name__)
+
+#: Report order of the modules (others, e.g. a baseline's, follow in the order met).
+MODULE_ORDER = ("decode", "grey", "GAD", "GMD", "classifier", "region", "LAD", "LMD", "switcher", "tiled",
+                "bearing", "mavlink")
+_LINK_WAIT_S = 5.0
+_DRAIN_S = 0.3
+_MAVLINK2_MAGIC = 0xFD
+_HEARTBEAT_ID = 0
+
+
+@dataclass(frozen=True)
+class ModuleTime:
+    """How often one module ran and how long it took when it did."""
+
+    name: str
+    runs: int  # frames on which it ran
+    share: float  # runs / frames
+    median_ms: float
+    p95_ms: float
+    mean_ms: float
+
+    def as_dict(self) -> Dict[str, object]:
+        return {"name": self.name, "runs": self.runs, "share": self.share, "median_ms": self.median_ms,
+                "p95_ms": self.p95_ms, "mean_ms": self.mean_ms}
+
+
+@dataclass(frozen=True)
+class BenchReport:
+    source: str
+    runner: str
+    size_wh: Tuple[int, int]
+    frames: int
+    modules: List[ModuleTime]
+    fps_end_to_end: float  # decode + detect + bearing + send
+    fps_without_decode: float  # detect + bearing + send
+    fps_decode_only: float  # the source alone (pass 1)
+    decode_ratio: float  # fps_end_to_end / fps_decode_only
+    latency_p50_ms: float
+    latency_p99_ms: float
+    latency_max_ms: float
+    modes: Dict[str, int]  # frames per detector mode (global / local)
+    frames_with_target: int  # frames whose result carried a measured target
+    messages_sent: int  # target messages the publisher handed to the link
+    messages_received: int  # non-heartbeat MAVLink messages that reached the bench's socket
+    providers: List[str]  # ONNX Runtime provider of each session, in model order
+    threads: int  # detector.threads (0 = ONNX Runtime's default)
+    cpu_count: int
+    load_avg: Tuple[float, float, float] = field(default=(0.0, 0.0, 0.0))
+
+    def module(self, name: str) -> Optional[ModuleTime]:
+        return next((m for m in self.modules if m.name == name), None)
+
+    def as_dict(self) -> Dict[str, object]:
+        out = {k: getattr(self, k) for k in (
+            "source", "runner", "frames", "fps_end_to_end", "fps_without_decode", "fps_decode_only",
+            "decode_ratio", "latency_p50_ms", "latency_p99_ms", "latency_max_ms", "modes", "frames_with_target",
+            "messages_sent", "messages_received", "providers", "threads", "cpu_count")}
+        out["size_wh"] = list(self.size_wh)
+        out["load_avg"] = list(self.load_avg)
+        out["modules"] = [m.as_dict() for m in self.modules]
+        return out
+
+
+class UdpSink:
+    """A UDP socket on 127.0.0.1 standing in for the autopilot: counts the MAVLink messages that arrive."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.port = self.sock.getsockname()[1]
+        self.by_msgid: Counter = Counter()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="bench-udp-sink", daemon=True)
+
+    @property
+    def non_heartbeat(self) -> int:
+        return sum(n for msgid, n in self.by_msgid.items() if msgid != _HEARTBEAT_ID)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(4096)
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            # MAVLink 2 frame: magic, len, incompat, compat, seq, sysid, compid, msgid (3 bytes, LE)
+            if len(data) >= 10 and data[0] == _MAVLINK2_MAGIC:
+                self.by_msgid[data[7] | data[8] << 8 | data[9] << 16] += 1
+
+    def __enter__(self) -> "UdpSink":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        time.sleep(_DRAIN_S)  # the last datagrams are still in flight
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.sock.close()
+
+
+def decode_only_fps(cfg: Config, source: str, frames: int = 0) -> Tuple[float, int]:
+    """Frames per second of reading ``source`` alone, and how many frames were read."""
+    capture = recording_config(cfg, source).capture
+    n = 0
+    with open_source(capture) as frames_in:
+        t0 = time.perf_counter()
+        for _frame in frames_in:
+            n += 1
+            if frames and n >= frames:
+                break
+        elapsed = time.perf_counter() - t0
+    return (n / elapsed if elapsed > 0 else float("nan")), n
+
+
+def _module_times(per_frame: List[Dict[str, float]]) -> List[ModuleTime]:
+    names = [m for m in MODULE_ORDER if any(m in t for t in per_frame)]
+    names += list(dict.fromkeys(m for t in per_frame for m in t if m not in MODULE_ORDER))
+    out = []
+    for name in names:
+        ms = np.array([t[name] for t in per_frame if name in t], np.float64)
+        out.append(ModuleTime(name, int(len(ms)), len(ms) / float(len(per_frame)), float(np.median(ms)),
+                              float(np.percentile(ms, 95)), float(ms.mean())))
+    return out
+
+
+def _percentile(values: List[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else float("nan")
+
+
+def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frames: int = 0) -> BenchReport:
+    """Profile ``runner`` (see payload.bench.runners) on the video file or image folder ``source``."""
+    from payload.bench.runners import onnx_sessions
+    from payload.mavlink.link import MavlinkLink
+    from payload.mavlink.outputs import TargetPublisher
+
+    fps_decode, _ = decode_only_fps(cfg, source, frames)
+    capture = recording_config(cfg, source).capture
+    mount = mount_from_config(cfg.camera.mount)
+    camera = None
+    per_frame: List[Dict[str, float]] = []
+    latency_ms: List[float] = []
+    modes: Counter = Counter()
+    with_target = sent = 0
+    size_wh = (0, 0)
+    with UdpSink() as sink:
+        link_cfg = cfg.mavlink.model_copy(update={"enabled": True, "connection": "udpout:127.0.0.1:%d" % sink.port})
+        with MavlinkLink(link_cfg) as link, open_source(capture) as frames_in:
+            deadline = time.monotonic() + _LINK_WAIT_S
+            while not link.status.connected and time.monotonic() < deadline:
+                time.sleep(0.01)
+            publisher = TargetPublisher(link, cfg.mavlink.outputs)
+            runner.reset()
+            t_start = time.perf_counter()
+            while not frames or len(per_frame) < frames:
+                t_ask = time.perf_counter()
+                try:
+                    frame = frames_in.read(timeout_s=1.0)
+                except EndOfStream:
+                    break
+                if frame is None:
+                    continue
+                t_decoded = time.perf_counter()
+                result = runner.process(frame)
+                t_detected = time.perf_counter()
+                bearing = None
+                if result.target is not None:
+                    if camera is None or size_wh != frame.size_wh:
+                        size_wh = frame.size_wh
+                        camera = CameraModel.from_config(cfg.camera, size_wh)
+                    bearing = bearing_for(result.target, camera, mount, link.attitude_at(frame.t_capture_ns))
+                t_bearing = time.perf_counter()
+                sent += publisher.publish(result.target, bearing, frame.size_wh)
+                t_sent = time.perf_counter()
+                timings = dict(result.timings_ms)
+                timings["decode"] = (t_decoded - t_ask) * 1000.0
+                if result.target is not None:
+                    timings["bearing"] = (t_bearing - t_detected) * 1000.0
+                timings["mavlink"] = (t_sent - t_bearing) * 1000.0
+                per_frame.append(timings)
+                latency_ms.append((t_sent - t_ask) * 1000.0)
+                modes[result.mode] += 1
+                with_target += bool(result.target is not None and result.target.measured)
+                size_wh = frame.size_wh
+            elapsed_s = time.perf_counter() - t_start
+    if not per_frame:
+        raise SourceError("bench %s: the source gave no frame" % source)
+    n = len(per_frame)
+    decode_s = sum(t["decode"] for t in per_frame) / 1000.0
+    fps_e2e = n / elapsed_s
+    providers = [m.providers[0] for m in onnx_sessions(runner)]
+    return BenchReport(
+        source=source, runner=runner_name, size_wh=size_wh, frames=n, modules=_module_times(per_frame),
+        fps_end_to_end=fps_e2e, fps_without_decode=n / max(elapsed_s - decode_s, 1e-9), fps_decode_only=fps_decode,
+        decode_ratio=fps_e2e / fps_decode, latency_p50_ms=_percentile(latency_ms, 50),
+        latency_p99_ms=_percentile(latency_ms, 99), latency_max_ms=max(latency_ms), modes=dict(modes),
+        frames_with_target=with_target, messages_sent=sent, messages_received=sink.non_heartbeat,
+        providers=providers, threads=cfg.detector.threads, cpu_count=os.cpu_count() or 0,
+        load_avg=tuple(os.getloadavg()) if hasattr(os, "getloadavg") else (0.0, 0.0, 0.0),
+    )
