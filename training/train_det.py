@@ -29,10 +29,10 @@ PAD = 114
 
 
 class Sampler:
-    def __init__(self, size, scale_min, scale_max, neg_frac, seed, extra=None, extra_frac=0.3):
+    def __init__(self, size, scale_min, scale_max, neg_frac, seed, extra=None, extra_frac=0.3, neg_file="det_neg.npy"):
         self.pos = np.load(os.path.join(CACHE, "det_pos.npy"), mmap_mode="r")
         self.pos_xyxy = np.load(os.path.join(CACHE, "det_pos_xyxy.npy"))
-        self.neg = np.load(os.path.join(CACHE, "det_neg.npy"), mmap_mode="r")
+        self.neg = np.load(os.path.join(CACHE, neg_file), mmap_mode="r")
         self.extra = extra  # optional (images, xyxy) of further crops, e.g. synthetic scenes (NaN xyxy: no drone)
         self.extra_frac = extra_frac
         self.size, self.smin, self.smax, self.neg_frac = size, scale_min, scale_max, neg_frac
@@ -155,6 +155,7 @@ def main():
     ap.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tuning)")
     ap.add_argument("--synth", default=None, help="npz with extra crops: images [N,S,S,3], xyxy [N,4] (NaN = no drone)")
     ap.add_argument("--synth-frac", type=float, default=0.3)
+    ap.add_argument("--neg-file", default="det_neg.npy", help="drone-free crops in training/cache/")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     run = os.path.join(HERE, "runs", args.name)
@@ -176,7 +177,7 @@ def main():
     if args.synth:
         z = np.load(args.synth)
         extra = (z["images"], z["xyxy"])
-    sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra, extra_frac=args.synth_frac)
+    sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra, extra_frac=args.synth_frac, neg_file=args.neg_file)
     print("params=%d steps=%d batch=%d size=%d" % (count_params(net), args.steps, args.batch, args.size), flush=True)
     net.train()
     t0 = time.time()
