@@ -64,7 +64,8 @@ class DetectionsCsvWriter:
         self.close()
 
 
-def _number(path: str, line: int, name: str, text: str) -> float:
+def parse_finite(path: str, line: int, name: str, text: str) -> float:
+    """A finite float from a text field, or a DataError naming file:line, field and value."""
     try:
         value = float(text)
     except ValueError:
@@ -102,7 +103,7 @@ def read_detections_csv(path: str) -> Dict[int, Detections]:
                     raise DataError("%s:%d: frame=%r is not an integer" % (path, line, row[0])) from None
                 if frame < 0:
                     raise DataError("%s:%d: frame=%d must be >= 0" % (path, line, frame))
-                x, y, w, h, score = (_number(path, line, n, t) for n, t in zip(HEADER[1:6], row[1:6]))
+                x, y, w, h, score = (parse_finite(path, line, n, t) for n, t in zip(HEADER[1:6], row[1:6]))
                 if w < 0 or h < 0:
                     raise DataError("%s:%d: w=%s, h=%s must be >= 0" % (path, line, row[3], row[4]))
                 module = row[6].strip()

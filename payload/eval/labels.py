@@ -28,6 +28,7 @@ from typing import Dict, Iterable, List, Optional, Sequence
 import numpy as np
 
 from payload.errors import DataError
+from payload.records import parse_finite
 
 log = logging.getLogger(__name__)
 
@@ -47,16 +48,6 @@ def _read_text(path: str) -> str:
         raise DataError("%s: not a UTF-8 text file" % path) from None
     except OSError as exc:
         raise DataError("%s: cannot read labels: %s" % (path, exc.strerror or exc)) from None
-
-
-def _finite(path: str, line: int, name: str, text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise DataError("%s:%d: %s=%r is not a number" % (path, line, name, text)) from None
-    if not math.isfinite(value):
-        raise DataError("%s:%d: %s=%r must be finite" % (path, line, name, text))
-    return value
 
 
 def _frame(path: str, line: int, text: str, first: int) -> int:
@@ -107,7 +98,7 @@ def _load_halmstad(path: str, classes: Optional[Sequence[str]]) -> Dict[int, np.
             raise DataError("%s:%d: %d fields, expected 6 (frame,class,x,y,w,h)" % (path, line, len(row)))
         frame = _frame(path, line, row[0], first=0)
         name = row[1].strip().upper()
-        x, y, w, h = (_finite(path, line, n, t) for n, t in zip("xywh", row[2:]))
+        x, y, w, h = (parse_finite(path, line, n, t) for n, t in zip("xywh", row[2:]))
         _size_ok(path, line, w, h)
         rows = boxes.setdefault(frame, [])
         seen.append(name)
@@ -178,10 +169,10 @@ def _load_mot(path: str) -> Dict[int, np.ndarray]:
         if len(row) < 6:
             raise DataError("%s:%d: %d fields, expected >= 6 (frame,id,x,y,w,h,conf,...)" % (path, line, len(row)))
         frame = _frame(path, line, row[0], first=1)
-        x, y, w, h = (_finite(path, line, n, t) for n, t in zip("xywh", row[2:6]))
+        x, y, w, h = (parse_finite(path, line, n, t) for n, t in zip("xywh", row[2:6]))
         _size_ok(path, line, w, h)
         rows = boxes.setdefault(frame, [])
-        if len(row) > 6 and _finite(path, line, "conf", row[6]) == 0:
+        if len(row) > 6 and parse_finite(path, line, "conf", row[6]) == 0:
             continue  # MOT ground truth marks regions to ignore with conf 0
         rows.append([x, y, x + w, y + h])
     return _collect(boxes)
