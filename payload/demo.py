@@ -19,7 +19,7 @@ from typing import Dict, Optional
 import numpy as np
 
 from payload.annotate import VideoOut, draw_result
-from payload.config import Config, load_config
+from payload.config import Config, config_with, load_config
 from payload.detect.pipeline import GladResult
 from payload.errors import SourceError
 from payload.service import Service
@@ -63,12 +63,10 @@ def read_record(path: str) -> Counter:
 
 
 def demo_config(base: Config, out_dir: str, frames: int, port: int) -> Config:
-    data = base.model_dump(by_alias=True)
-    data["capture"].update(source="synthetic", pace=False)
-    data["capture"]["synthetic"]["frames"] = frames
-    data["mavlink"].update(enabled=True, connection="udpout:127.0.0.1:%d" % port)
-    data["outputs"].update(directory=out_dir)
-    return Config.model_validate(data)
+    return config_with(base, **{
+        "capture.source": "synthetic", "capture.pace": False, "capture.synthetic.frames": frames,
+        "mavlink.enabled": True, "mavlink.connection": "udpout:127.0.0.1:%d" % port, "outputs.directory": out_dir,
+    })
 
 
 class _DemoView:

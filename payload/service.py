@@ -87,7 +87,6 @@ class Service:
         self._reload = threading.Event()
         self._ready_sent = False
         self._camera: Optional[CameraModel] = None
-        self._camera_wh = (0, 0)
         self._mount = None
         self.link = None
         self.publisher = None
@@ -203,9 +202,8 @@ class Service:
     def _bearing(self, frame: Frame, result: GladResult) -> Optional[Bearing]:
         if result.target is None:
             return None
-        if self._camera is None or self._camera_wh != frame.size_wh:
+        if self._camera is None or self._camera.image_wh != frame.size_wh:
             self._camera = CameraModel.from_config(self.cfg.camera, frame.size_wh)
-            self._camera_wh = frame.size_wh
             self._mount = mount_from_config(self.cfg.camera.mount)
         attitude = self.link.attitude_at(frame.t_capture_ns) if self.link is not None else None
         return bearing_for(result.target, self._camera, self._mount, attitude)

@@ -174,10 +174,8 @@ class Glad:
         t = time.perf_counter()
         target = None
         if len(best):
-            box = best.xyxy[0]
-            center = ((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0)
-            self.region.start(center, (box[2] - box[0], box[3] - box[1]))
-            target = self._target(frame, best, measured=True, region=None)
+            self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
+            target = self._target(frame, best, region=None)
         self.switcher.after(hit=bool(len(best)))
         timings["switcher"] = _ms(t)
         return GladResult(frame.index, frame.t_capture_ns, GLOBAL, best, Detections.concat(candidates), target, None, timings)
@@ -208,9 +206,8 @@ class Glad:
         t = time.perf_counter()
         best = self._pick(found, predicted)
         if len(best):
-            box = best.xyxy[0]
-            self.region.hit(((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0), (box[2] - box[0], box[3] - box[1]))
-            target = self._target(frame, best, measured=True, region=region)
+            self.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
+            target = self._target(frame, best, region=region)
         else:
             self.region.miss()
             target = Target(
@@ -258,16 +255,10 @@ class Glad:
         return found[order[:1]]
 
     @staticmethod
-    def _target(frame: Frame, best: Detections, measured: bool, region) -> Target:
-        return Target(
-            frame.index,
-            frame.t_capture_ns,
-            best.xyxy[0].copy(),
-            float(best.score[0]),
-            str(best.module[0]),
-            measured=measured,
-            region_xyxy=region,
-        )
+    def _target(frame: Frame, best: Detections, region) -> Target:
+        """The measured target: the chosen detection."""
+        return Target(frame.index, frame.t_capture_ns, best.xyxy[0].copy(), float(best.score[0]),
+                      str(best.module[0]), measured=True, region_xyxy=region)
 
 
 def _ego_motion_config(cfg: DetectorConfig):
