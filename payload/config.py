@@ -275,10 +275,14 @@ def _flatten(data: Any, prefix: str = "") -> Dict[str, Any]:
     return {prefix: data}
 
 
+def flat_config(cfg: Config) -> Dict[str, Any]:
+    """Every leaf of a config by its dotted YAML key, e.g. 'detector.global.appearance.confidence'."""
+    return _flatten(cfg.model_dump(by_alias=True))
+
+
 def changed_keys(old: Config, new: Config) -> List[str]:
     """Dotted keys whose values differ between two configs."""
-    a = _flatten(old.model_dump(by_alias=True))
-    b = _flatten(new.model_dump(by_alias=True))
+    a, b = flat_config(old), flat_config(new)
     return sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
 
 

@@ -19,7 +19,7 @@ from typing import Callable, List, Optional
 
 from payload.capture import open_source
 from payload.capture.base import EndOfStream, FrameSource
-from payload.config import Config, changed_keys, load_config, restart_required
+from payload.config import Config, changed_keys, config_with, flat_config, load_config, restart_required
 from payload.detect.pipeline import Glad, GladResult
 from payload.errors import ConfigError
 from payload.geometry import CameraModel, bearing_for, mount_from_config
@@ -274,8 +274,9 @@ class Service:
             self.publisher.cfg = new.mavlink.outputs
         logging.getLogger().setLevel(new.logging.level)
         self._camera = None  # camera intrinsics/mount may have changed
-        # Restart-only sections keep their running values, so a later reload reports them again.
-        self.cfg = new.model_copy(update={"capture": self.cfg.capture, "outputs": self.cfg.outputs})
+        # Restart-only keys keep their running values until a restart, so a later reload reports them again.
+        running = flat_config(self.cfg)
+        self.cfg = config_with(new, **{key: running[key] for key in pending})
         log.info("reload: applied %s changed=%s", self.config_path, ",".join(live) or "nothing")
         self.notifier.ready()
         return True
