@@ -1,8 +1,10 @@
 """PNG plots for docs/results.md from the JSON that ``glad-payload bench`` writes.
 
   python bench/plot_results.py --ablation ablation.json --profiles a.json b.json --out docs/img
+  python bench/plot_results.py --pr pr_val.json --pr-title "Halmstad val" --out docs/img/pr_val.png
 Writes fps_per_configuration.png (ablation rows: detector-only and end-to-end FPS, with AP)
-and time_per_module.png (mean ms per frame of each module, one group per profile).
+and time_per_module.png (mean ms per frame of each module, one group per profile); with --pr,
+one precision-recall curve per ablation row (or eval JSON) with its operating points marked.
 matplotlib is needed only here (pip install matplotlib), never by the payload.
 """
 
@@ -64,12 +66,47 @@ def plot_modules(profiles, out_png):
     plt.close(fig)
 
 
+def plot_pr(files, title, out_png, marks=(0.1, 0.3, 0.5, 0.7)):
+    """PR curves of every row of ablation JSONs (or the pooled row of eval JSONs); the points where the
+    score threshold crosses ``marks`` are labelled, so the chosen T0/T1 can be read off the curve."""
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for path in files:
+        data = _load(path)
+        rows = data["rows"] if "rows" in data else [{"name": data["pooled"]["name"], "pooled": data["pooled"]}]
+        for r in rows:
+            curve = np.array(r["pooled"].get("pr_curve") or [], float).reshape(-1, 3)
+            if not len(curve):
+                continue
+            line, = ax.plot(curve[:, 2], curve[:, 1], lw=1.5, label="%s (AP %.2f)" % (r["name"], r["pooled"]["ap"] or 0))
+            for t in marks:
+                kept = curve[curve[:, 0] >= t]
+                if len(kept):
+                    ax.plot(kept[-1, 2], kept[-1, 1], "o", ms=4, color=line.get_color())
+                    ax.annotate("%.1f" % t, (kept[-1, 2], kept[-1, 1]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("recall (IoU > 0.5)")
+    ax.set_ylabel("precision")
+    ax.set_title("%s: precision-recall (dots: score thresholds)" % title, fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=90)
+    plt.close(fig)
+
+
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--ablation", required=True)
-    ap.add_argument("--profiles", nargs="+", required=True)
+    ap.add_argument("--ablation")
+    ap.add_argument("--profiles", nargs="+", default=[])
+    ap.add_argument("--pr", nargs="+", default=[], help="ablation/eval JSONs: PR curves into --out (a .png path)")
+    ap.add_argument("--pr-title", default="")
     ap.add_argument("--out", default="docs/img")
     args = ap.parse_args()
+    if args.pr:
+        plot_pr(args.pr, args.pr_title, args.out)
+        print("wrote %s" % args.out)
+        return
     os.makedirs(args.out, exist_ok=True)
     plot_ablation(_load(args.ablation), os.path.join(args.out, "fps_per_configuration.png"))
     plot_modules([_load(p) for p in args.profiles], os.path.join(args.out, "time_per_module.png"))

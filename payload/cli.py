@@ -10,6 +10,25 @@ from payload import __version__
 from payload.errors import ConfigError, PayloadError
 
 
+def _seeds(text: str) -> List[int]:
+    """A seed (``7``) or an inclusive range (``100-109``)."""
+    try:
+        first, _, last = text.partition("-")
+        seeds = list(range(int(first), int(last or first) + 1))
+    except ValueError:
+        seeds = []
+    if not seeds or seeds[0] < 0:
+        raise argparse.ArgumentTypeError("%r: expected a seed (7) or a range of seeds (100-109)" % text)
+    return seeds
+
+
+def _add_synthetic_args(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--synthetic", nargs="+", type=_seeds, default=[], metavar="SEED",
+                   help="%s rendered synthetic clips (capture.synthetic scene) with these seeds, e.g. 100-109" % what)
+    p.add_argument("--target-px", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
+                   help="--synthetic: drone size range in px (default capture.synthetic.target_px)")
+
+
 def _check_config(args) -> int:
     from payload.config import load_config
 
@@ -97,6 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", default=None, help="also write the table as JSON here")
     p.add_argument("--limit", type=int, default=0, help="only the first N frames of each clip (0 = all)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_synthetic_args(p, "run detect+score on")
+    p.add_argument("--frames", type=int, default=150, help="--synthetic: frames per clip")
     p.set_defaults(func=_eval)
 
     p = sub.add_parser("bench", help="speed profile of a clip (per module, FPS, latency) or --ablation (Table V + baselines)")
@@ -116,6 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--labels", nargs="*", default=[], help="ablation: label file(s) or folder for --clips")
     p.add_argument("--limit", type=int, default=0, help="ablation: only the first N frames of each clip")
     p.add_argument("--no-progress", action="store_true", help="no per-row progress lines")
+    _add_synthetic_args(p, "ablation:")
     p.set_defaults(func=_bench)
 
     p = sub.add_parser("synth", help="render a synthetic air-to-air clip: MP4 + per-frame labels CSV")
@@ -133,6 +155,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Optional[List[str]] = None) -> int:
     args = build_parser().parse_args(argv)
+    if getattr(args, "synthetic", None):
+        args.synthetic = [seed for seeds in args.synthetic for seed in seeds]
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

@@ -82,6 +82,17 @@ def test_hand_made_precision_recall_and_ap():
     assert score.f1 == pytest.approx(2 * 0.6 * 0.75 / 1.35)
     assert score.ap == pytest.approx(6.2 / 11)
     assert score.frames_with_detections == pytest.approx(4 / 5)
+    # the PR curve: one point per threshold, the same precision/recall as the ranking above
+    assert np.allclose(score.pr_curve(), [[0.9, 1, 1 / 4], [0.8, 1 / 2, 1 / 4], [0.7, 2 / 3, 1 / 2],
+                                          [0.6, 1 / 2, 1 / 2], [0.5, 3 / 5, 3 / 4]])
+    assert np.allclose(score.pr_curve(points=2), [[0.9, 1, 1 / 4], [0.5, 3 / 5, 3 / 4]])
+
+
+def test_pr_curve_keeps_tied_scores_together():
+    labels = {0: np.array([[0, 0, 20, 20]], np.float32), 1: np.array([[0, 0, 20, 20]], np.float32)}
+    dets = {0: _det([[0, 0, 20, 20]], [0.5]), 1: _det([[50, 50, 70, 70]], [0.5])}
+    # a threshold of 0.5 keeps both: one point, precision 1/2, recall 1/2 (never "1 of 1 kept")
+    assert np.allclose(score_clip("tie", dets, labels).pr_curve(), [[0.5, 0.5, 0.5]])
 
 
 def test_recall_exactly_on_a_grid_point_counts():
@@ -358,3 +369,27 @@ def test_split_runs_glad_end_to_end(halmstad_dir, capsys):
     with open(os.path.join(halmstad_dir, "splits.json")) as fh:
         n_val = len(json.load(fh)["val"])
     assert len(rows) == n_val + 1 and all(row[1] == "2" for row in rows[:n_val])
+
+
+def test_synthetic_seeds_are_rendered_scored_and_named(tmp_path, capsys):
+    # two seeded 1080p clips (a range) rendered, run through GLAD and scored against their own truth
+    out = tmp_path / "syn.json"
+    rc = main(["eval", "--synthetic", "3-4", "--frames", "6", "--target-px", "10", "20", "--no-progress",
+               "--json", str(out)])
+    assert rc == 0
+    table = capsys.readouterr().out
+    assert "SYN_3_1920x1080" in table and "SYN_4_1920x1080" in table
+    report = json.loads(out.read_text())
+    assert [c["name"] for c in report["clips"]] == ["SYN_3_1920x1080", "SYN_4_1920x1080"]
+    assert all(c["frames"] == 6 for c in report["clips"])
+    assert report["pooled"]["gt"] == sum(c["gt"] for c in report["clips"]) > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["eval", "--synthetic", "3", "--split", "val"], "give one of --split, --clips, --synthetic"),
+    (["eval", "--synthetic", "3", "--target-px", "20", "10"], "--target-px 20.0 10.0: expected 0 < MIN <= MAX"),
+])
+def test_synthetic_usage_errors(argv, needle, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and "\n" not in err

@@ -18,6 +18,7 @@ from typing import List
 
 from payload.config import Config, load_config
 from payload.errors import DataError
+from payload.eval.cli import synthetic_clip
 
 log = logging.getLogger(__name__)
 
@@ -93,23 +94,8 @@ def _nan_to_none(data):
     return data
 
 
-def synthetic_clip(cfg: Config, out_dir: str, frames: int):
-    """Render the configured synthetic scene to ``out_dir``; returns a ClipSpec (video + labels)."""
-    from payload.eval.cli import ClipSpec
-    from payload.synth.export import export_clip
-    from payload.synth.scene import Scene
-
-    s = cfg.capture.synthetic
-    scene = Scene(seed=s.seed, width=s.width, height=s.height, fps=s.fps, frames=frames,
-                  target_px=tuple(s.target_px), background=s.background)
-    name = "SYN_%d_%dx%d" % (s.seed, s.width, s.height)
-    log.info("bench rendering synthetic clip name=%s frames=%d", name, frames)
-    video, labels = export_clip(scene, out_dir, name)
-    return ClipSpec(name, video, labels)
-
-
 def _ablation_clips(args, cfg: Config, tmp: str) -> List:
-    from payload.eval.cli import UsageError, clips_from_paths, find_splits, split_clips
+    from payload.eval.cli import UsageError, clips_from_paths, find_splits, split_clips, synthetic_clips
 
     if args.split and args.clips:
         raise UsageError("--ablation: give --split or --clips, not both")
@@ -117,6 +103,8 @@ def _ablation_clips(args, cfg: Config, tmp: str) -> List:
         return split_clips(find_splits(args.splits), args.split)
     if args.clips:
         return clips_from_paths(args.clips, args.labels)
+    if args.synthetic:
+        return synthetic_clips(cfg, tmp, args.frames or SYNTHETIC_FRAMES, args.synthetic, args.target_px)
     return [synthetic_clip(cfg, tmp, args.frames or SYNTHETIC_FRAMES)]
 
 

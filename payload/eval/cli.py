@@ -12,6 +12,7 @@ import logging
 import math
 import os
 import sys
+import tempfile
 from dataclasses import dataclass
 from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
@@ -120,6 +121,32 @@ def clips_from_paths(videos: Sequence[str], labels: Sequence[str]) -> List[ClipS
     return clips
 
 
+def synthetic_clip(cfg, out_dir: str, frames: int, seed: Optional[int] = None,
+                   target_px: Optional[Sequence[float]] = None) -> ClipSpec:
+    """Render the configured synthetic scene (``seed``/``target_px`` override it) to ``out_dir``
+    as a video and its labels."""
+    from payload.synth.export import export_clip
+    from payload.synth.scene import Scene
+
+    s = cfg.capture.synthetic
+    seed = s.seed if seed is None else seed
+    target_px = tuple(s.target_px if target_px is None else target_px)
+    scene = Scene(seed=seed, width=s.width, height=s.height, fps=s.fps, frames=frames,
+                  target_px=target_px, background=s.background)
+    name = "SYN_%d_%dx%d" % (seed, s.width, s.height)
+    log.info("rendering synthetic clip name=%s frames=%d target_px=%s", name, frames, list(target_px))
+    video, labels = export_clip(scene, out_dir, name)
+    return ClipSpec(name, video, labels)
+
+
+def synthetic_clips(cfg, out_dir: str, frames: int, seeds: Sequence[int],
+                    target_px: Optional[Sequence[float]] = None) -> List[ClipSpec]:
+    """One rendered synthetic clip per seed (``--synthetic``)."""
+    if target_px is not None and not 0 < target_px[0] <= target_px[1]:
+        raise UsageError("--target-px %s %s: expected 0 < MIN <= MAX" % tuple(target_px))
+    return [synthetic_clip(cfg, out_dir, frames, seed, target_px) for seed in seeds]
+
+
 def score_detection_files(dets: Sequence[str], labels: Sequence[str]) -> List[ClipScore]:
     if len(dets) != len(labels):
         raise UsageError("--dets has %d files but --labels has %d (give one label file or folder per CSV)"
@@ -192,18 +219,8 @@ def _glad_detector(args) -> DetectFn:
 
 def main_eval(args) -> int:
     try:
-        if args.split or args.clips:
-            if args.split and args.clips:
-                raise UsageError("give --split or --clips, not both")
-            if args.dets:
-                raise UsageError("--dets scores existing CSVs; it does not combine with --split/--clips")
-            clips = (split_clips(find_splits(args.splits), args.split) if args.split
-                     else clips_from_paths(args.clips, args.labels))
-            scores = score_clips(clips, _glad_detector(args))
-        elif args.dets:
-            scores = score_detection_files(args.dets, args.labels)
-        else:
-            raise UsageError("nothing to score: give --dets with --labels, --split NAME or --clips VIDEO...")
+        with tempfile.TemporaryDirectory(prefix="glad-eval-") as tmp:
+            scores = _scores(args, tmp)
     except UsageError as exc:
         print("glad-payload eval: %s" % exc, file=sys.stderr)
         return 2
@@ -213,3 +230,25 @@ def main_eval(args) -> int:
         write_json(args.json, scores, pooled)
         print("wrote %s" % args.json)
     return 0
+
+
+def _scores(args, tmp: str) -> List[ClipScore]:
+    sources = [name for name, given in (("--split", args.split), ("--clips", args.clips),
+                                        ("--synthetic", args.synthetic)) if given]
+    if len(sources) > 1:
+        raise UsageError("give one of --split, --clips, --synthetic, not %s" % " and ".join(sources))
+    if sources:
+        if args.dets:
+            raise UsageError("--dets scores existing CSVs; it does not combine with %s" % sources[0])
+        if args.split:
+            clips = split_clips(find_splits(args.splits), args.split)
+        elif args.clips:
+            clips = clips_from_paths(args.clips, args.labels)
+        else:
+            from payload.config import load_config
+
+            clips = synthetic_clips(load_config(args.config), tmp, args.frames, args.synthetic, args.target_px)
+        return score_clips(clips, _glad_detector(args))
+    if args.dets:
+        return score_detection_files(args.dets, args.labels)
+    raise UsageError("nothing to score: give --dets with --labels, --split NAME, --clips VIDEO... or --synthetic SEED...")

@@ -9,7 +9,7 @@ detection, recall or AP with no ground truth) are NaN, never a made-up 0 or 1.
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, Mapping, Optional, Sequence
+from typing import Dict, List, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -122,7 +122,20 @@ class ClipScore:
                     "frames_with_detections"):
             value = getattr(self, key)
             out[key] = None if isinstance(value, float) and math.isnan(value) else value
+        out["pr_curve"] = self.pr_curve()
         return out
+
+    def pr_curve(self, points: int = 50) -> List[List[float]]:
+        """[score threshold, precision, recall] at up to ``points`` thresholds, highest score first:
+        what the detections would score if only those at or above the threshold were kept."""
+        if not len(self.det_score) or self.gt <= 0:
+            return []
+        cum_tp = np.cumsum(self.det_tp)
+        ranks = np.unique(np.linspace(0, len(cum_tp) - 1, min(points, len(cum_tp))).round().astype(int))
+        # a threshold keeps every detection with an equal score: move each rank to its last tie
+        last_of_score = np.searchsorted(-self.det_score, -self.det_score[ranks], side="right") - 1
+        return [[float(self.det_score[i]), float(cum_tp[i] / (i + 1)), float(cum_tp[i] / self.gt)]
+                for i in np.unique(last_of_score)]
 
 
 def score_clip(name: str, dets: Mapping[int, Detections], labels: Mapping[int, np.ndarray],
