@@ -35,6 +35,8 @@ def main():
     ap.add_argument("--frames", type=int, default=90)
     ap.add_argument("--first-seed", type=int, default=1000, help="seeds kept apart from the demo/eval seeds")
     ap.add_argument("--crop", type=int, default=256)
+    ap.add_argument("--name", default="synth", help="outputs <name>_det.npz and <name>_cls.npz")
+    ap.add_argument("--target-px", type=float, nargs=2, default=(4.0, 24.0), help="drone size range")
     args = ap.parse_args()
     rng = np.random.default_rng(1)
     images, boxes, cls_x, cls_y = [], [], [], []
@@ -42,7 +44,7 @@ def main():
     for s in range(args.scenes):
         seed = args.first_seed + s
         prev = None
-        for sf in Scene(seed=seed, width=1920, height=1080, fps=30.0, frames=args.frames, target_px=(4.0, 24.0)):
+        for sf in Scene(seed=seed, width=1920, height=1080, fps=30.0, frames=args.frames, target_px=tuple(args.target_px)):
             img = sf.image
             box = sf.target_xyxy
             visible = box is not None and sf.target_visible >= 0.5
@@ -69,8 +71,8 @@ def main():
                     cls_y += [0] * len(neg)
             prev = img
         print("scene %d/%d seed=%d det=%d cls=%d" % (s + 1, args.scenes, seed, len(images), len(cls_y)), flush=True)
-    np.savez(os.path.join(CACHE, "synth_det.npz"), images=np.stack(images), xyxy=np.stack(boxes))
-    np.savez(os.path.join(CACHE, "synth_cls.npz"), x=np.concatenate(cls_x), y=np.array(cls_y, np.uint8))
+    np.savez(os.path.join(CACHE, args.name + "_det.npz"), images=np.stack(images), xyxy=np.stack(boxes))
+    np.savez(os.path.join(CACHE, args.name + "_cls.npz"), x=np.concatenate(cls_x), y=np.array(cls_y, np.uint8))
     print("done det=%d (with drone %d) cls=%d (drone %d)"
           % (len(images), int(np.isfinite(np.stack(boxes)[:, 0]).sum()), len(cls_y), int(np.sum(cls_y))))
 

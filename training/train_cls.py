@@ -40,7 +40,7 @@ def main():
     ap.add_argument("--batch", type=int, default=128)
     ap.add_argument("--lr", type=float, default=2e-3)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--synth", default=None, help="npz with more patches: x [K,32,32,3], y [K]")
+    ap.add_argument("--synth", nargs="*", default=[], help="npz files with more patches: x [K,32,32,3], y [K]")
     ap.add_argument("--resume", action="store_true")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -48,8 +48,8 @@ def main():
     os.makedirs(run, exist_ok=True)
     X = np.load(os.path.join(CACHE, "cls_x.npy"))
     Y = np.load(os.path.join(CACHE, "cls_y.npy")).astype(np.int64)
-    if args.synth:
-        z = np.load(args.synth)
+    for path in args.synth:
+        z = np.load(path)
         X, Y = np.concatenate([X, z["x"]]), np.concatenate([Y, z["y"].astype(np.int64)])
     rng = np.random.default_rng(0)
     perm = rng.permutation(len(Y))

@@ -152,8 +152,8 @@ def main():
     ap.add_argument("--wh-weight", type=float, default=1.0)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--resume", action="store_true")
-    ap.add_argument("--init", default=None, help="start from this checkpoint's weights (fine-tuning)")
-    ap.add_argument("--synth", default=None, help="npz with extra crops: images [N,S,S,3], xyxy [N,4] (NaN = no drone)")
+    ap.add_argument("--init", default=None, help="start from this checkpoint's (.pt) or exported model's (.onnx) weights")
+    ap.add_argument("--synth", nargs="*", default=[], help="npz files with extra crops: images [N,S,S,3], xyxy [N,4] (NaN = no drone)")
     ap.add_argument("--synth-frac", type=float, default=0.3)
     ap.add_argument("--neg-file", default="det_neg.npy", help="drone-free crops in training/cache/")
     args = ap.parse_args()
@@ -170,14 +170,20 @@ def main():
         opt.load_state_dict(ck["opt"])
         step = ck["step"]
         print("resumed step=%d" % step, flush=True)
-    elif args.init:
-        net.load_state_dict(torch.load(args.init, weights_only=False)["model"])
-        print("init from %s" % args.init, flush=True)
     extra = None
     if args.synth:
-        z = np.load(args.synth)
-        extra = (z["images"], z["xyxy"])
+        files = [np.load(path) for path in args.synth]
+        extra = (np.concatenate([z["images"] for z in files]), np.concatenate([z["xyxy"] for z in files]))
     sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra, extra_frac=args.synth_frac, neg_file=args.neg_file)
+    if step == 0 and args.init and args.init.endswith(".onnx"):
+        from training.onnx_init import load_onnx_detector
+
+        net = load_onnx_detector(args.init, args.width, [sampler.batch(args.batch)[0] for _ in range(4)])
+        opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
+        print("init from %s (BatchNorm folded in the graph: re-split on 4 batches)" % args.init, flush=True)
+    elif step == 0 and args.init:
+        net.load_state_dict(torch.load(args.init, weights_only=False)["model"])
+        print("init from %s" % args.init, flush=True)
     print("params=%d steps=%d batch=%d size=%d" % (count_params(net), args.steps, args.batch, args.size), flush=True)
     net.train()
     t0 = time.time()
