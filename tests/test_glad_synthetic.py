@@ -1,10 +1,10 @@
 """GLAD end to end on synthetic 1080p moving-camera clips with tiny (6-20 px) targets.
 
 The paper's point: after down-scaling, the global appearance detector alone misses most tiny
-targets; motion and the local detector at native resolution find them. Three seeded clips,
-pooled. (Issue 3 also asks for F >= 0.8 on such a clip; the shipped models do not reach it on
-every seed yet — `payload/models/MODEL_CARD.md` gives the per-seed figures — so that figure is
-reported by the eval commands, not asserted here.)
+targets; motion and the local detector at native resolution find them. Three seeded clips (the
+same since this test was written), pooled: GLAD reaches F >= 0.8 (issue 3), the global appearance
+detector alone is far worse. A wider seeded set is scored by `glad-payload eval --synthetic`
+(docs/results.md), where GLAD does not reach F 0.8 on every clip.
 """
 
 import numpy as np
@@ -56,7 +56,8 @@ def test_glad_finds_tiny_targets_the_global_detector_misses(clips):
     alone, _, alone_modules = score(config_with(Config(), **GAD_ONLY), clips)
     print("GLAD P=%.2f R=%.2f F=%.2f | GAD alone P=%.2f R=%.2f F=%.2f"
           % (glad.precision, glad.recall, glad.f1, alone.precision, alone.recall, alone.f1))
+    assert glad.f1 >= 0.8
     assert glad.recall >= np.nan_to_num(alone.recall) + 0.3
-    assert glad.f1 >= np.nan_to_num(alone.f1) + 0.2
+    assert glad.f1 >= np.nan_to_num(alone.f1) + 0.3
     assert alone_modules <= {"GAD"}  # the ablation row really ran the global appearance detector only
     assert glad_modes.count("local") > 0.5 * len(glad_modes)  # GLAD tracked locally once it had a target

@@ -37,3 +37,85 @@ def test_homography_from_a_downscaled_copy_matches_the_true_shift(rng):
     moved = cv2.perspectiveTransform(np.array([[[960.0, 540.0]], [[100.0, 900.0]]]), estimate.matrix)
     np.testing.assert_allclose(moved.reshape(-1, 2) - [[960.0, 540.0], [100.0, 900.0]], [[12, -6], [12, -6]], atol=0.5)
     assert estimate.mean_shift_px == pytest.approx(np.hypot(12, 6), abs=0.5)  # in full-frame pixels
+
+
+# --- which modules' hits the classifier must confirm (detector.classifier.modules) ---------------
+
+def _spot_glad(tmp_path, **overrides):
+    """GLAD on tiny real ONNX models: a bright-spot detector as GAD and LAD, and a classifier whose
+    drone probability is the patch's mean brightness. Global motion off: one frame, appearance only."""
+    from onnx_factories import bright_spot_detector, brightness_classifier
+
+    from payload.config import config_with
+    from payload.detect.pipeline import Glad
+    from payload.models import build_detectors
+
+    cfg = config_with(Config(), **{
+        "detector.global.appearance.model": bright_spot_detector(tmp_path / "spot.onnx"),
+        "detector.local.appearance.model": str(tmp_path / "spot.onnx"),
+        "detector.classifier.model": brightness_classifier(tmp_path / "bright.onnx"),
+        "detector.global.motion.enabled": False,
+        **overrides,
+    })
+    return Glad(cfg.detector, build_detectors(cfg.detector))
+
+
+def _spot_frame(index=0, side=4):
+    from payload.types import Frame
+
+    image = np.zeros((384, 640, 3), np.uint8)
+    image[200:200 + side, 320:320 + side] = 255  # white on 4-aligned cells: detector score 1.0
+    return Frame(image, index, index * 33_000_000, 0)
+
+
+def test_appearance_hits_bypass_the_classifier_in_the_papers_setting(tmp_path):
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": ["GMD", "LMD"], "detector.classifier.lock_hits": 0})
+    result = glad.process(_spot_frame())
+    assert list(result.detections.module) == ["GAD"]
+    assert result.detections.score[0] == pytest.approx(1.0)
+    assert result.mode == "global"
+
+
+def test_classifier_vetoes_a_global_appearance_hit_when_it_checks_gad(tmp_path):
+    # the patch around the spot is mostly black: drone probability ~0.1 < 0.5
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": ["GAD", "GMD", "LMD"]})
+    result = glad.process(_spot_frame())
+    assert len(result.candidates) == 1 and len(result.detections) == 0
+    assert result.target is None and not glad.region.active
+
+
+def test_confirmed_appearance_hit_keeps_the_detector_confidence(tmp_path):
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": ["GAD"], "detector.classifier.threshold": 0.05})
+    result = glad.process(_spot_frame())
+    assert list(result.detections.module) == ["GAD"]
+    assert result.detections.score[0] == pytest.approx(1.0)  # not replaced by the ~0.1 probability
+    assert "classifier" in result.timings_ms
+
+
+@pytest.mark.parametrize("side, lock_stands", [(4, False), (16, True)])
+def test_lock_is_dropped_when_the_classifier_does_not_believe_in_it(tmp_path, side, lock_stands):
+    # nothing gated, lock judged on 3 hits: a 4 px spot in black (drone probability 0.11) is followed
+    # for two frames and then dropped; a 16 px white square is kept (the chosen hit is its corner cell,
+    # whose 12 px patch is 44% white: probability 0.44)
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 3,
+                                   "detector.classifier.lock_threshold": 0.3, "detector.local.motion.enabled": False})
+    results = [glad.process(_spot_frame(i, side)) for i in range(5)]
+    assert [r.mode for r in results[:3]] == ["global", "local", "local"]
+    assert all(len(r.detections) == 1 for r in results[:2])
+    if lock_stands:
+        assert all(len(r.detections) == 1 for r in results) and results[-1].mode == "local"
+    else:
+        assert len(results[2].detections) == 0 and results[2].target is None
+        assert results[3].mode == "global"  # searched globally again
+
+
+def test_lock_check_judges_the_mean_of_the_last_hits():
+    from payload.detect.classifier import LockCheck
+
+    lock = LockCheck(hits=3, threshold=0.5)
+    assert [lock.add(p) for p in (0.1, 0.1)] == [True, True]  # not judged before 3 hits
+    assert lock.add(0.9) is False  # mean 0.37
+    lock.reset()
+    assert [lock.add(p) for p in (0.9, 0.2, 0.5, 0.1, 0.1)] == [True, True, True, False, False]
+    lock.update_config(0, 0.5)
+    assert lock.add(0.0) is True  # off

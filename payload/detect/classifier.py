@@ -7,6 +7,7 @@ Network contract (training/net.py): input 'patches' [N, 3, 32, 32] RGB in [0, 1]
 """
 
 import logging
+from collections import deque
 
 import numpy as np
 
@@ -39,9 +40,38 @@ class AppearanceClassifier:
         x = patches_to_input(crop_patches(image_bgr, dets.xyxy))
         return self.model.run({self._input_name: x})[0][:, 1].astype(np.float32)
 
-    def filter(self, image_bgr: np.ndarray, dets: Detections) -> Detections:
-        """The detections whose drone probability reaches cfg.threshold, scored by that probability."""
+    def filter(self, image_bgr: np.ndarray, dets: Detections, rescore: bool = True) -> Detections:
+        """The detections whose drone probability reaches cfg.threshold; ``rescore``: scored by that probability."""
         prob = self.probabilities(image_bgr, dets)
         keep = prob >= self.cfg.threshold
         log.debug("classifier candidates=%d kept=%d", len(dets), int(keep.sum()))
-        return Detections(dets.xyxy[keep], prob[keep], dets.module[keep])
+        kept = dets[keep]
+        return Detections(kept.xyxy, prob[keep], kept.module) if rescore else kept
+
+
+class LockCheck:
+    """Track confirmation: a lock stands while the classifier believes in it on average.
+
+    The local detector follows whatever it was started on (a bird, a branch) as long as it keeps
+    scoring above T1; one frame's classifier verdict is too noisy to drop a lock on, the mean over
+    the lock's last ``hits`` hits is not. Judged once that many hits are in; ``hits`` 0 = off.
+    """
+
+    def __init__(self, hits: int, threshold: float) -> None:
+        self.hits, self.threshold = hits, threshold
+        self._probs: deque = deque(maxlen=max(1, hits))
+
+    def update_config(self, hits: int, threshold: float) -> None:
+        if hits != self.hits:
+            self._probs = deque(self._probs, maxlen=max(1, hits))
+        self.hits, self.threshold = hits, threshold
+
+    def reset(self) -> None:
+        self._probs.clear()
+
+    def add(self, drone_probability: float) -> bool:
+        """Record a hit's drone probability; False when the lock is judged false."""
+        if not self.hits:
+            return True
+        self._probs.append(float(drone_probability))
+        return len(self._probs) < self.hits or float(np.mean(self._probs)) >= self.threshold

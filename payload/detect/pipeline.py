@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from payload.config import DetectorConfig
+from payload.detect.classifier import LockCheck
 from payload.detect.motion import HomographyEstimate, MotionDetector, estimate_homography
 from payload.detect.region import SearchRegion
 from payload.detect.switcher import GLOBAL, LOCAL, Switcher
@@ -105,6 +106,7 @@ class Glad:
         self.lmd = MotionDetector(cfg.local.motion, LMD)
         self.region = SearchRegion(cfg.search_region)
         self.switcher = Switcher(cfg.switcher, local_available=self._local_available(cfg))
+        self.lock = LockCheck(self._lock_hits(cfg), cfg.classifier.lock_threshold)
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
         self._ego_cfg = _ego_motion_config(cfg)
@@ -112,6 +114,11 @@ class Glad:
     @staticmethod
     def _local_available(cfg: DetectorConfig) -> bool:
         return cfg.local.appearance.enabled or cfg.local.motion.enabled
+
+    def _lock_hits(self, cfg: DetectorConfig) -> int:
+        """The lock check needs the classifier: off without it."""
+        usable = cfg.classifier.enabled and self.models.classifier is not None
+        return cfg.classifier.lock_hits if usable else 0
 
     def update_config(self, cfg: DetectorConfig) -> None:
         """Hot reload: thresholds and switches; models stay as loaded."""
@@ -122,6 +129,7 @@ class Glad:
         self.region.update_config(cfg.search_region)
         self.switcher.update_config(cfg.switcher)
         self.switcher.local_available = self._local_available(cfg)
+        self.lock.update_config(self._lock_hits(cfg), cfg.classifier.lock_threshold)
         if self.models.global_appearance is not None:
             self.models.global_appearance.update_config(cfg.global_.appearance)
         if self.models.local_appearance is not None:
@@ -132,6 +140,7 @@ class Glad:
     def reset(self) -> None:
         self.switcher.reset()
         self.region.reset()
+        self.lock.reset()
         self._prev = self._prev_t_ns = None
 
     # --- the per-frame step -------------------------------------------------------------
@@ -159,6 +168,7 @@ class Glad:
             found = gad.detect(frame.image)
             timings[GAD] = _ms(t)
             candidates.append(found)
+            found = self._classify(frame.image, found, timings)
         prev = self._prev
         if not len(found) and self.cfg.global_.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
@@ -175,6 +185,8 @@ class Glad:
         target = None
         if len(best):
             self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
+            self.lock.reset()
+            self._lock_holds(frame.image, best, timings)
             target = self._target(frame, best, region=None)
         self.switcher.after(hit=bool(len(best)))
         timings["switcher"] = _ms(t)
@@ -196,6 +208,7 @@ class Glad:
             found = lad.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1))
             timings[LAD] = _ms(t)
             candidates.append(found)
+            found = self._classify(frame.image, found, timings)
         prev = self._prev
         if not len(found) and self.cfg.local.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
@@ -205,6 +218,13 @@ class Glad:
             candidates.append(motion.detections)
         t = time.perf_counter()
         best = self._pick(found, predicted)
+        if len(best) and not self._lock_holds(frame.image, best, timings):
+            # the classifier does not believe in what is being followed: search globally again
+            self.region.reset()
+            self.switcher.reset()
+            timings["switcher"] = _ms(t)
+            return GladResult(frame.index, frame.t_capture_ns, LOCAL, Detections.empty(), Detections.concat(candidates),
+                              None, region, timings)
         if len(best):
             self.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
             target = self._target(frame, best, region=region)
@@ -233,13 +253,28 @@ class Glad:
         return _to_full_frame(estimate, grey.scale_xy(grey.ego)).matrix
 
     def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float]) -> Detections:
+        """The hits the classifier confirms, for the modules it checks (cfg.classifier.modules).
+
+        Motion hits take the classifier's probability as their score (the motion detector has no
+        score of its own); appearance hits keep the detector's confidence.
+        """
         classifier = self.models.classifier
-        if not len(dets) or classifier is None or not self.cfg.classifier.enabled:
+        cfg = self.cfg.classifier
+        if not len(dets) or classifier is None or not cfg.enabled or dets.module[0] not in cfg.modules:
             return dets
         t = time.perf_counter()
-        kept = classifier.filter(image, dets)
+        kept = classifier.filter(image, dets, rescore=dets.module[0] in (GMD, LMD))
         timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
         return kept
+
+    def _lock_holds(self, image: np.ndarray, best: Detections, timings: Dict[str, float]) -> bool:
+        """Feed the chosen hit's drone probability to the lock check (cfg.classifier.lock_hits)."""
+        if not self.lock.hits:
+            return True
+        t = time.perf_counter()
+        probability = float(self.models.classifier.probabilities(image, best)[0])
+        timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
+        return self.lock.add(probability)
 
     def _pick(self, found: Detections, predicted_xy) -> Detections:
         """Local choice among several boxes: by confidence or by distance to the prediction."""
