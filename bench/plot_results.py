@@ -66,14 +66,18 @@ def plot_modules(profiles, out_png):
     plt.close(fig)
 
 
-def plot_pr(files, title, out_png, marks=(0.1, 0.3, 0.5, 0.7)):
+def plot_pr(files, title, out_png, rows=None, marks=(0.1, 0.3, 0.5, 0.7)):
     """PR curves of every row of ablation JSONs (or the pooled row of eval JSONs); the points where the
     score threshold crosses ``marks`` are labelled, so the chosen T0/T1 can be read off the curve."""
     fig, ax = plt.subplots(figsize=(6, 4.5))
+    seen = set()  # a row name in several files: the first file's curve is drawn
     for path in files:
         data = _load(path)
-        rows = data["rows"] if "rows" in data else [{"name": data["pooled"]["name"], "pooled": data["pooled"]}]
-        for r in rows:
+        rows_of = data["rows"] if "rows" in data else [{"name": data["pooled"]["name"], "pooled": data["pooled"]}]
+        for r in rows_of:
+            if (rows and r["name"] not in rows) or r["name"] in seen:
+                continue
+            seen.add(r["name"])
             curve = np.array(r["pooled"].get("pr_curve") or [], float).reshape(-1, 3)
             if not len(curve):
                 continue
@@ -101,10 +105,11 @@ def main():
     ap.add_argument("--profiles", nargs="+", default=[])
     ap.add_argument("--pr", nargs="+", default=[], help="ablation/eval JSONs: PR curves into --out (a .png path)")
     ap.add_argument("--pr-title", default="")
+    ap.add_argument("--pr-rows", nargs="*", default=None, help="only these ablation rows")
     ap.add_argument("--out", default="docs/img")
     args = ap.parse_args()
     if args.pr:
-        plot_pr(args.pr, args.pr_title, args.out)
+        plot_pr(args.pr, args.pr_title, args.out, rows=args.pr_rows)
         print("wrote %s" % args.out)
         return
     os.makedirs(args.out, exist_ok=True)

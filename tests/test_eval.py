@@ -85,7 +85,7 @@ def test_hand_made_precision_recall_and_ap():
     # the PR curve: one point per threshold, the same precision/recall as the ranking above
     assert np.allclose(score.pr_curve(), [[0.9, 1, 1 / 4], [0.8, 1 / 2, 1 / 4], [0.7, 2 / 3, 1 / 2],
                                           [0.6, 1 / 2, 1 / 2], [0.5, 3 / 5, 3 / 4]])
-    assert np.allclose(score.pr_curve(points=2), [[0.9, 1, 1 / 4], [0.5, 3 / 5, 3 / 4]])
+    assert np.allclose(score.pr_curve(points=2, score_step=0.5), [[0.9, 1, 1 / 4], [0.5, 3 / 5, 3 / 4]])
 
 
 def test_pr_curve_keeps_tied_scores_together():

@@ -125,13 +125,17 @@ class ClipScore:
         out["pr_curve"] = self.pr_curve()
         return out
 
-    def pr_curve(self, points: int = 50) -> List[List[float]]:
-        """[score threshold, precision, recall] at up to ``points`` thresholds, highest score first:
-        what the detections would score if only those at or above the threshold were kept."""
+    def pr_curve(self, points: int = 50, score_step: float = 0.02) -> List[List[float]]:
+        """[score threshold, precision, recall], highest score first: what the detections would score
+        if only those at or above the threshold were kept. Thresholds: ``points`` spread over the
+        ranking plus one every ``score_step`` of score (so each round threshold is on the curve)."""
         if not len(self.det_score) or self.gt <= 0:
             return []
         cum_tp = np.cumsum(self.det_tp)
-        ranks = np.unique(np.linspace(0, len(cum_tp) - 1, min(points, len(cum_tp))).round().astype(int))
+        by_rank = np.linspace(0, len(cum_tp) - 1, min(points, len(cum_tp))).round().astype(int)
+        grid = np.arange(0.0, 1.0 + 1e-9, score_step)
+        by_score = np.searchsorted(-self.det_score, -grid, side="right") - 1
+        ranks = np.unique(np.concatenate([by_rank, by_score[by_score >= 0]]))
         # a threshold keeps every detection with an equal score: move each rank to its last tie
         last_of_score = np.searchsorted(-self.det_score, -self.det_score[ranks], side="right") - 1
         return [[float(self.det_score[i]), float(cum_tp[i] / (i + 1)), float(cum_tp[i] / self.gt)]
