@@ -8,7 +8,7 @@ import cv2
 
 from payload.annotate import VideoOut, draw_result
 from payload.capture import open_source
-from payload.config import Config, load_config
+from payload.config import CaptureConfig, Config, load_config
 from payload.detect.pipeline import Glad, GladResult
 from payload.errors import SourceError
 from payload.types import Detections, Frame
@@ -35,11 +35,16 @@ def _frame_count(source: str) -> Optional[int]:
 
 
 def iter_glad(source: str, cfg: Config, limit: int = 0, progress: bool = True,
-              glad: Optional[Glad] = None) -> Iterator[Tuple[Frame, GladResult]]:
-    """Run GLAD over every frame of a recording (at most ``limit`` frames when > 0)."""
-    cfg = recording_config(cfg, source)
+              glad: Optional[Glad] = None, capture: Optional[CaptureConfig] = None) -> Iterator[Tuple[Frame, GladResult]]:
+    """Run GLAD over every frame of a recording (at most ``limit`` frames when > 0); ``capture``
+    replaces the recording (e.g. a finite synthetic scene), ``source`` then only names it."""
+    if capture is None:
+        cfg = recording_config(cfg, source)
+        total = _frame_count(source)
+    else:
+        cfg = cfg.model_copy(update={"capture": capture})
+        total = capture.synthetic.frames if capture.source == "synthetic" and capture.synthetic.frames else None
     glad = glad or Glad(cfg.detector)
-    total = _frame_count(source)
     if limit and total:
         total = min(total, limit)
     bar = None
@@ -60,9 +65,10 @@ def iter_glad(source: str, cfg: Config, limit: int = 0, progress: bool = True,
             bar.close()
 
 
-def run_detect(source: str, cfg: Config, limit: int = 0, progress: bool = True) -> Dict[int, Detections]:
-    """Frame index -> GLAD's detections for that frame, over a whole recording."""
-    return {frame.index: result.detections for frame, result in iter_glad(source, cfg, limit, progress)}
+def run_detect(source: str, cfg: Config, limit: int = 0, progress: bool = True,
+               capture: Optional[CaptureConfig] = None) -> Dict[int, Detections]:
+    """Frame index -> GLAD's detections for that frame, over a whole recording (or ``capture``)."""
+    return {frame.index: result.detections for frame, result in iter_glad(source, cfg, limit, progress, capture=capture)}
 
 
 def main_detect(args) -> int:

@@ -435,3 +435,19 @@ def test_open_source_synthetic():
         pytest.skip("payload.capture.synthetic not in this tree yet")
     src = open_source(CaptureConfig(source="synthetic"))
     assert isinstance(src, SyntheticSource) and isinstance(src, FrameSource)
+
+
+def test_unpaced_synthetic_frames_follow_the_scene_timeline():
+    # eval/bench read the scene as fast as they can: capture times must still be 1/fps apart
+    # (the search region's motion model uses them), as for a recording
+    from payload.capture.synthetic import SyntheticSource
+    from payload.config import SyntheticSceneConfig
+
+    cfg = SyntheticSceneConfig(seed=3, width=320, height=240, fps=25.0, frames=4)
+    with SyntheticSource(cfg, pace=False) as src:
+        frames = [src.read() for _ in range(4)]
+        with pytest.raises(EndOfStream):
+            src.read()
+    assert [f.index for f in frames] == [0, 1, 2, 3]
+    assert np.diff([f.t_capture_ns for f in frames]).tolist() == [40_000_000] * 3
+    assert np.diff([f.t_wall_ns for f in frames]).tolist() == [40_000_000] * 3

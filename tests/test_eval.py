@@ -336,8 +336,8 @@ def test_clips_with_labels_found_beside_and_scored_with_a_real_video(halmstad_di
     assert clips[0].labels == os.path.join(halmstad_dir, "labels", "V_DRONE_013.csv")
     truth = load_labels(clips[0].labels)
 
-    def every_other_frame(path):
-        cap = cv2.VideoCapture(path)
+    def every_other_frame(clip):
+        cap = cv2.VideoCapture(clip.video)
         out, index = {}, 0
         while index < 60:
             ok, _ = cap.read()

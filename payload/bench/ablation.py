@@ -107,7 +107,7 @@ def run_row(cfg: Config, row: Row, clips: Sequence[ClipSpec], limit: int = 0) ->
         labels = load_labels(clip.labels)
         found: Dict[int, Detections] = {}
         runner.reset()
-        capture = recording_config(row_cfg, clip.video).capture
+        capture = clip.capture or recording_config(row_cfg, clip.video).capture
         with open_source(capture) as frames_in:
             t_clip = time.perf_counter()
             for frame in frames_in:

@@ -28,6 +28,7 @@ class SyntheticSource(FrameSource):
         self.last_truth: Optional[SceneFrame] = None
         self._frames: Optional[Iterator[SceneFrame]] = None
         self._next_due_ns = 0
+        self._t0 = None
 
     def _scene(self) -> Scene:
         cfg = self.cfg
@@ -39,6 +40,7 @@ class SyntheticSource(FrameSource):
             return
         self._frames = iter(self._scene())
         self._next_due_ns = time.monotonic_ns()
+        self._t0 = None  # (mono, wall) of scene frame 0 when unpaced
         self.stats.connected = True
         log.info("synthetic source open seed=%d size=%dx%d fps=%.1f frames=%d", self.cfg.seed, self.cfg.width,
                  self.cfg.height, self.cfg.fps, self.cfg.frames)
@@ -57,7 +59,15 @@ class SyntheticSource(FrameSource):
                 time.sleep(wait_ns / 1e9)
             self._next_due_ns = max(self._next_due_ns, time.monotonic_ns() - int(1e9 / self.cfg.fps)) + int(
                 1e9 / self.cfg.fps)
-        t_capture_ns, t_wall_ns = now_ns()
+        if self.pace:
+            t_capture_ns, t_wall_ns = now_ns()
+        else:
+            # unpaced (eval, bench): capture times follow the scene's own timeline, as for a recording,
+            # so that the search region's motion model sees 1/fps between frames, not the render time
+            if self._t0 is None:
+                self._t0 = now_ns()
+            offset_ns = int(round(truth.index * 1e9 / self.cfg.fps))
+            t_capture_ns, t_wall_ns = self._t0[0] + offset_ns, self._t0[1] + offset_ns
         self.last_truth = truth
         self.stats.frames += 1
         return Frame(image=truth.image, index=truth.index, t_capture_ns=t_capture_ns, t_wall_ns=t_wall_ns)

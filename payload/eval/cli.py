@@ -14,7 +14,7 @@ import os
 import sys
 import tempfile
 from dataclasses import dataclass
-from typing import Callable, Dict, List, Mapping, Optional, Sequence
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence
 
 from payload.errors import DataError
 from payload.eval.labels import load_labels
@@ -27,16 +27,21 @@ log = logging.getLogger(__name__)
 SPLITS_REL = os.path.join("shared", "data", "halmstad", "splits.json")
 LABEL_SUFFIXES = (".csv", ".txt")
 
-DetectFn = Callable[[str], Mapping[int, Detections]]
+DetectFn = Callable[["ClipSpec"], Mapping[int, Detections]]
 
 
 @dataclass(frozen=True)
 class ClipSpec:
-    """A clip to run the detector on and the labels to score it against."""
+    """A clip to run the detector on and the labels to score it against.
+
+    ``capture``: where the frames come from when they are not the ``video`` file (a synthetic
+    scene rendered in memory); ``video`` then only names it.
+    """
 
     name: str
     video: str
     labels: str
+    capture: Optional[Any] = None  # payload.config.CaptureConfig
 
 
 class UsageError(Exception):
@@ -122,29 +127,36 @@ def clips_from_paths(videos: Sequence[str], labels: Sequence[str]) -> List[ClipS
 
 
 def synthetic_clip(cfg, out_dir: str, frames: int, seed: Optional[int] = None,
-                   target_px: Optional[Sequence[float]] = None) -> ClipSpec:
-    """Render the configured synthetic scene (``seed``/``target_px`` override it) to ``out_dir``
-    as a video and its labels."""
-    from payload.synth.export import export_clip
+                   target_px: Optional[Sequence[float]] = None, video: bool = True) -> ClipSpec:
+    """The configured synthetic scene (``seed``/``target_px`` override it) and its labels under
+    ``out_dir``. ``video``: written as an MP4 and read back like a recording (the bench measures
+    decoding); otherwise rendered again in memory when the clip is run, frames exactly as drawn."""
+    from payload.synth.export import export_clip, write_labels
     from payload.synth.scene import Scene
 
-    s = cfg.capture.synthetic
-    seed = s.seed if seed is None else seed
-    target_px = tuple(s.target_px if target_px is None else target_px)
-    scene = Scene(seed=seed, width=s.width, height=s.height, fps=s.fps, frames=frames,
-                  target_px=target_px, background=s.background)
-    name = "SYN_%d_%dx%d" % (seed, s.width, s.height)
-    log.info("rendering synthetic clip name=%s frames=%d target_px=%s", name, frames, list(target_px))
-    video, labels = export_clip(scene, out_dir, name)
-    return ClipSpec(name, video, labels)
+    s = cfg.capture.synthetic.model_copy(update={
+        "seed": cfg.capture.synthetic.seed if seed is None else seed,
+        "frames": frames,
+        "target_px": tuple(target_px if target_px is not None else cfg.capture.synthetic.target_px),
+    })
+    scene = Scene(seed=s.seed, width=s.width, height=s.height, fps=s.fps, frames=frames,
+                  target_px=tuple(s.target_px), background=s.background)
+    name = "SYN_%d_%dx%d" % (s.seed, s.width, s.height)
+    log.info("rendering synthetic clip name=%s frames=%d target_px=%s video=%s", name, frames, list(s.target_px), video)
+    if video:
+        path, labels = export_clip(scene, out_dir, name)
+        return ClipSpec(name, path, labels)
+    labels = write_labels(scene, out_dir, name)
+    capture = cfg.capture.model_copy(update={"source": "synthetic", "synthetic": s, "loop": False, "pace": False})
+    return ClipSpec(name, "synthetic scene seed %d" % s.seed, labels, capture)
 
 
 def synthetic_clips(cfg, out_dir: str, frames: int, seeds: Sequence[int],
                     target_px: Optional[Sequence[float]] = None) -> List[ClipSpec]:
-    """One rendered synthetic clip per seed (``--synthetic``)."""
+    """One synthetic clip per seed (``--synthetic``), rendered in memory."""
     if target_px is not None and not 0 < target_px[0] <= target_px[1]:
         raise UsageError("--target-px %s %s: expected 0 < MIN <= MAX" % tuple(target_px))
-    return [synthetic_clip(cfg, out_dir, frames, seed, target_px) for seed in seeds]
+    return [synthetic_clip(cfg, out_dir, frames, seed, target_px, video=False) for seed in seeds]
 
 
 def score_detection_files(dets: Sequence[str], labels: Sequence[str]) -> List[ClipScore]:
@@ -160,11 +172,11 @@ def score_detection_files(dets: Sequence[str], labels: Sequence[str]) -> List[Cl
 
 
 def score_clips(clips: Sequence[ClipSpec], detect: DetectFn) -> List[ClipScore]:
-    """Run ``detect`` (video path -> frame -> Detections, every frame present) and score each clip."""
+    """Run ``detect`` (clip -> frame -> Detections, every frame present) and score each clip."""
     labels = {clip.name: load_labels(clip.labels) for clip in clips}  # bad labels fail before any detection
     scores = []
     for clip in clips:
-        found = detect(clip.video)
+        found = detect(clip)
         frames = max(found) + 1 if found else 0
         score = score_clip(clip.name, found, labels[clip.name], frames=frames)
         log.info("eval clip=%s frames=%d gt=%d tp=%d fp=%d", clip.name, score.frames, score.gt, score.tp, score.fp)
@@ -211,8 +223,8 @@ def _glad_detector(args) -> DetectFn:
 
     cfg = load_config(args.config)
 
-    def detect(video: str) -> Dict[int, Detections]:
-        return run_detect(video, cfg, limit=args.limit, progress=not args.no_progress)
+    def detect(clip: ClipSpec) -> Dict[int, Detections]:
+        return run_detect(clip.video, cfg, limit=args.limit, progress=not args.no_progress, capture=clip.capture)
 
     return detect
 

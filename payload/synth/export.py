@@ -30,24 +30,39 @@ def export_clip(scene: Scene, out_dir: str, name: str) -> Tuple[str, str]:
     if not writer.isOpened():
         raise SourceError(f"synth export {video_path}: cannot open an mp4v video writer")
     homographies = []
-    visible = 0
     try:
-        with open(csv_path, "w", newline="") as fh:
-            rows = csv.writer(fh)
-            rows.writerow(["frame", "class", "x", "y", "w", "h"])
-            for frame in scene:
-                writer.write(frame.image)
-                homographies.append(frame.homography)
-                if frame.target_xyxy is not None:
-                    x1, y1, x2, y2 = (float(v) for v in frame.target_xyxy)
-                    rows.writerow([frame.index, "DRONE", f"{x1 + 1:.2f}", f"{y1 + 1:.2f}", f"{x2 - x1:.2f}",
-                                   f"{y2 - y1:.2f}"])
-                    visible += 1
+        visible = _write_rows(scene, csv_path, lambda frame: (writer.write(frame.image), homographies.append(frame.homography)))
     finally:
         writer.release()
     np.save(os.path.join(out_dir, name + "_homography.npy"), np.asarray(homographies, np.float64))
     log.info("synth clip=%s frames=%d visible=%d out=%s", name, len(homographies), visible, out_dir)
     return video_path, csv_path
+
+
+def write_labels(scene: Scene, out_dir: str, name: str) -> str:
+    """Render ``scene`` for its ground truth only: the labels CSV (same format as export_clip)."""
+    if scene.frames <= 0:
+        raise PayloadError(f"synth labels {name}: frames={scene.frames}, expected a finite clip (frames > 0)")
+    os.makedirs(out_dir, exist_ok=True)
+    csv_path = os.path.join(out_dir, name + ".csv")
+    _write_rows(scene, csv_path, lambda frame: None)
+    return csv_path
+
+
+def _write_rows(scene: Scene, csv_path: str, each_frame) -> int:
+    """Halmstad-style label rows (1-based x, y) for every frame with a visible drone; returns their count."""
+    visible = 0
+    with open(csv_path, "w", newline="") as fh:
+        rows = csv.writer(fh)
+        rows.writerow(["frame", "class", "x", "y", "w", "h"])
+        for frame in scene:
+            each_frame(frame)
+            if frame.target_xyxy is not None:
+                x1, y1, x2, y2 = (float(v) for v in frame.target_xyxy)
+                rows.writerow([frame.index, "DRONE", f"{x1 + 1:.2f}", f"{y1 + 1:.2f}", f"{x2 - x1:.2f}",
+                               f"{y2 - y1:.2f}"])
+                visible += 1
+    return visible
 
 
 def main_synth(args) -> int:
