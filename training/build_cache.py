@@ -89,6 +89,14 @@ def diff_blobs(prev, img, avoid, n):
     return out[:n]
 
 
+def within_crop_reach(box, other, side=256):
+    """True when ``other`` may fall inside a ``side`` px crop cut around ``box`` by crop_with (it
+    places the box anywhere in the crop): their centres are closer than the side (+4 px) on both axes."""
+    reach = side + 4
+    return (abs((other[0] + other[2]) / 2 - (box[0] + box[2]) / 2) < reach
+            and abs((other[1] + other[3]) / 2 - (box[1] + box[3]) / 2) < reach)
+
+
 def jitter(rng, box, amount=0.15):
     w, h = box[2] - box[0], box[3] - box[1]
     s = rng.uniform(1 - amount, 1 + amount)

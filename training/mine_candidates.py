@@ -35,7 +35,7 @@ from payload.detect.onnx_model import OnnxModel  # noqa: E402
 from payload.detect.patches import crop_patches  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
 from payload.types import GAD, GMD, LAD, LMD  # noqa: E402
-from training.build_cache import CACHE, crop_with, iou, jitter  # noqa: E402
+from training.build_cache import CACHE, crop_with, iou, jitter, within_crop_reach  # noqa: E402
 from training.halmstad import frames, labels, splits  # noqa: E402
 
 REGION_PX = 300
@@ -55,7 +55,7 @@ def label(box, gt):
     return -1
 
 
-def region_around(rng, xy, size_wh):
+def region_around(xy, size_wh):
     w, h = size_wh
     x0 = int(np.clip(xy[0] - REGION_PX / 2, 0, max(0, w - REGION_PX)))
     y0 = int(np.clip(xy[1] - REGION_PX / 2, 0, max(0, h - REGION_PX)))
@@ -82,8 +82,8 @@ class Miner:
         regions = []
         if gt is not None:
             c = (gt[:2] + gt[2:]) / 2 + rng.uniform(-100, 100, 2)
-            regions.append(region_around(rng, c, (w, h)))
-        regions.append(region_around(rng, rng.uniform(0, 1, 2) * (w, h), (w, h)))
+            regions.append(region_around(c, (w, h)))
+        regions.append(region_around(rng.uniform(0, 1, 2) * (w, h), (w, h)))
         for x0, y0, x1, y1 in regions:
             proposals.append((LAD, self.lad.detect(img[y0:y1, x0:x1], offset_xy=(x0, y0)).xyxy))
             if pgrey is not None:
@@ -109,16 +109,11 @@ class Miner:
             if module in (GAD, LAD):  # appearance false positives: local-detector hard negatives
                 for b in neg[:1]:
                     crop, _ = crop_with(rng, img, b, 256)
-                    if gt is None or not self._holds(crop, b, gt):
+                    if gt is None or not within_crop_reach(b, gt):
                         self.det_neg.append(crop.copy())
         if pos:
             self.cls_x.append(crop_patches(img, np.array(pos, np.float32)))
             self.cls_y += [1] * len(pos)
-
-    @staticmethod
-    def _holds(crop, b, gt):
-        # crop_with puts b somewhere in a 256 px crop: the drone is inside if it is within 256 px
-        return abs((gt[0] + gt[2]) / 2 - (b[0] + b[2]) / 2) < 260 and abs((gt[1] + gt[3]) / 2 - (b[1] + b[3]) / 2) < 260
 
     def summary(self):
         return "cls=%d (drone %d; clutter by module %s) det_neg=%d" % (

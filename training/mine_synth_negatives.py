@@ -19,7 +19,7 @@ from payload.config import AppearanceConfig  # noqa: E402
 from payload.detect.appearance import AppearanceDetector  # noqa: E402
 from payload.detect.onnx_model import OnnxModel  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
-from training.build_cache import CACHE, crop_with, iou  # noqa: E402
+from training.build_cache import CACHE, crop_with, iou, within_crop_reach  # noqa: E402
 
 
 def main():
@@ -47,7 +47,7 @@ def main():
                     continue
                 crop, _ = crop_with(rng, sf.image, box, 256)
                 if gt is not None:  # the crop must not contain the drone either
-                    if abs((gt[0] + gt[2]) / 2 - (box[0] + box[2]) / 2) < 260 and abs((gt[1] + gt[3]) / 2 - (box[1] + box[3]) / 2) < 260:
+                    if within_crop_reach(box, gt):
                         continue
                 crops.append(crop.copy())
         print("scene %d/%d mined=%d" % (s + 1, args.scenes, len(crops)), flush=True)

@@ -176,11 +176,13 @@ def main():
         extra = (np.concatenate([z["images"] for z in files]), np.concatenate([z["xyxy"] for z in files]))
     sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra, extra_frac=args.synth_frac, neg_file=args.neg_file)
     if step == 0 and args.init and args.init.endswith(".onnx"):
-        from training.onnx_init import load_onnx_detector
+        from training.onnx_init import load_onnx_detector, max_abs_diff
 
-        net = load_onnx_detector(args.init, args.width, [sampler.batch(args.batch)[0] for _ in range(4)])
+        calibration = [sampler.batch(args.batch)[0] for _ in range(4)]
+        net = load_onnx_detector(args.init, args.width, calibration)
         opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
-        print("init from %s (BatchNorm folded in the graph: re-split on 4 batches)" % args.init, flush=True)
+        print("init from %s (BatchNorm folded in the graph: re-split on 4 batches; max abs difference to the "
+              "ONNX output on one of them: %.2e)" % (args.init, max_abs_diff(net, args.init, calibration[0])), flush=True)
     elif step == 0 and args.init:
         net.load_state_dict(torch.load(args.init, weights_only=False)["model"])
         print("init from %s" % args.init, flush=True)

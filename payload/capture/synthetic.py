@@ -12,8 +12,15 @@ from payload.types import Frame
 log = logging.getLogger(__name__)
 
 
+def scene_of(cfg: SyntheticSceneConfig) -> Scene:
+    """The scene a synthetic capture config describes."""
+    return Scene(seed=cfg.seed, width=cfg.width, height=cfg.height, fps=cfg.fps, frames=cfg.frames,
+                 target_px=tuple(cfg.target_px), background=cfg.background)
+
+
 class SyntheticSource(FrameSource):
-    """Frames of ``Scene(cfg)`` stamped with the clock at delivery.
+    """Frames of ``scene_of(cfg)``, stamped with the clock at delivery when paced, else with the
+    scene's own timeline (1/fps apart, like a recording).
 
     ``pace=True`` delivers at ``cfg.fps`` like a camera (waiting, never dropping). The ground
     truth of the frame last read is ``last_truth`` (a SceneFrame).
@@ -30,15 +37,10 @@ class SyntheticSource(FrameSource):
         self._next_due_ns = 0
         self._t0 = None
 
-    def _scene(self) -> Scene:
-        cfg = self.cfg
-        return Scene(seed=cfg.seed, width=cfg.width, height=cfg.height, fps=cfg.fps, frames=cfg.frames,
-                     target_px=tuple(cfg.target_px), background=cfg.background)
-
     def open(self) -> None:
         if self._frames is not None:
             return
-        self._frames = iter(self._scene())
+        self._frames = iter(scene_of(self.cfg))
         self._next_due_ns = time.monotonic_ns()
         self._t0 = None  # (mono, wall) of scene frame 0 when unpaced
         self.stats.connected = True

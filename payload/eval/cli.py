@@ -131,16 +131,15 @@ def synthetic_clip(cfg, out_dir: str, frames: int, seed: Optional[int] = None,
     """The configured synthetic scene (``seed``/``target_px`` override it) and its labels under
     ``out_dir``. ``video``: written as an MP4 and read back like a recording (the bench measures
     decoding); otherwise rendered again in memory when the clip is run, frames exactly as drawn."""
+    from payload.capture.synthetic import scene_of
     from payload.synth.export import export_clip, write_labels
-    from payload.synth.scene import Scene
 
     s = cfg.capture.synthetic.model_copy(update={
         "seed": cfg.capture.synthetic.seed if seed is None else seed,
         "frames": frames,
         "target_px": tuple(target_px if target_px is not None else cfg.capture.synthetic.target_px),
     })
-    scene = Scene(seed=s.seed, width=s.width, height=s.height, fps=s.fps, frames=frames,
-                  target_px=tuple(s.target_px), background=s.background)
+    scene = scene_of(s)
     name = "SYN_%d_%dx%d" % (s.seed, s.width, s.height)
     log.info("rendering synthetic clip name=%s frames=%d target_px=%s video=%s", name, frames, list(s.target_px), video)
     if video:
@@ -216,12 +215,9 @@ def write_json(path: str, scores: Sequence[ClipScore], pooled: ClipScore) -> Non
         raise DataError("%s: cannot write JSON: %s" % (path, exc.strerror or exc)) from None
 
 
-def _glad_detector(args) -> DetectFn:
+def _glad_detector(args, cfg) -> DetectFn:
     # Imported here: scoring existing CSVs must not need the models or onnxruntime.
-    from payload.config import load_config
     from payload.detect_cmd import run_detect
-
-    cfg = load_config(args.config)
 
     def detect(clip: ClipSpec) -> Dict[int, Detections]:
         return run_detect(clip.video, cfg, limit=args.limit, progress=not args.no_progress, capture=clip.capture)
@@ -252,15 +248,16 @@ def _scores(args, tmp: str) -> List[ClipScore]:
     if sources:
         if args.dets:
             raise UsageError("--dets scores existing CSVs; it does not combine with %s" % sources[0])
+        from payload.config import load_config
+
+        cfg = load_config(args.config)
         if args.split:
             clips = split_clips(find_splits(args.splits), args.split)
         elif args.clips:
             clips = clips_from_paths(args.clips, args.labels)
         else:
-            from payload.config import load_config
-
-            clips = synthetic_clips(load_config(args.config), tmp, args.frames, args.synthetic, args.target_px)
-        return score_clips(clips, _glad_detector(args))
+            clips = synthetic_clips(cfg, tmp, args.frames, args.synthetic, args.target_px)
+        return score_clips(clips, _glad_detector(args, cfg))
     if args.dets:
         return score_detection_files(args.dets, args.labels)
     raise UsageError("nothing to score: give --dets with --labels, --split NAME, --clips VIDEO... or --synthetic SEED...")
