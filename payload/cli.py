@@ -106,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_detect)
 
-    p = sub.add_parser("eval", help="score detections against labels (P, R, F, AP at IoU 0.5)")
+    p = sub.add_parser("eval", help="score detections against labels (P, R, F, AP at IoU > 0.5)")
     p.add_argument("--dets", nargs="*", default=[], help="detections CSV(s) to score (with --labels)")
     p.add_argument("--labels", nargs="*", default=[], help="label file(s) or folder(s), one per --dets")
     p.add_argument("--split", default=None, help="run detect+score on a split of splits.json, e.g. val")
@@ -118,6 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     _add_synthetic_args(p, "run detect+score on")
     p.add_argument("--frames", type=int, default=150, help="--synthetic: frames per clip")
+    p.add_argument("--iou", type=float, default=0.5,
+                   help="a detection matches a labelled box when their IoU exceeds this (default 0.5, the paper's)")
     p.set_defaults(func=_eval)
 
     p = sub.add_parser("bench", help="speed profile of a clip (per module, FPS, latency) or --ablation (Table V + baselines)")

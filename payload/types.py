@@ -109,6 +109,12 @@ class Detections:
         """The same boxes moved by (dx, dy): crop coordinates -> full-frame coordinates."""
         return Detections(self.xyxy + np.array([dx, dy, dx, dy], np.float32), self.score, self.module)
 
+    def resized(self, size_wh) -> "Detections":
+        """The same centres with every box ``size_wh`` (w, h) pixels."""
+        half = np.asarray(size_wh, np.float32).reshape(-1, 2) / 2.0
+        centers = self.centers
+        return Detections(np.concatenate([centers - half, centers + half], axis=1), self.score, self.module)
+
     def sorted_by_score(self) -> "Detections":
         return self[np.argsort(-self.score, kind="stable")]
 

@@ -60,7 +60,7 @@ def test_paper_parameters_defaults():
     lm = c.local.motion
     assert (lm.alpha, lm.open_iterations, lm.min_blob_area_px) == (1.0, 1, 30)
     assert c.search_region.side_px == 300 and c.search_region.growth_px_per_miss == 4.0
-    assert c.switcher.max_local_misses == 30
+    assert c.switcher.max_local_misses == 10  # measured deviation from the paper's 30 (payload/config.py)
 
 
 @pytest.mark.parametrize("text,expected", BROKEN)

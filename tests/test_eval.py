@@ -287,10 +287,25 @@ def test_eval_command_scores_csv_pairs_and_writes_json(tmp_path, capsys):
     assert data["pooled"]["precision"] == pytest.approx(2 / 3)
 
 
+def test_eval_iou_threshold_is_an_option(tmp_path, capsys):
+    # a box half the labelled one's area overlaps it with IoU 0.5: not a match at the paper's
+    # "IoU > 0.5", a match at --iou 0.3
+    (tmp_path / "A_labels.csv").write_text("frame,class,x,y,w,h\n0,DRONE,1,1,20,10\n")
+    _write_dets(tmp_path / "A.csv", {0: _det([[0, 0, 10, 10]], [0.9])})
+    args = ["eval", "--dets", str(tmp_path / "A.csv"), "--labels", str(tmp_path / "A_labels.csv")]
+    for extra, tp, note in (([], 0, False), (["--iou", "0.3"], 1, True)):
+        out = tmp_path / "scores.json"
+        assert main(args + extra + ["--json", str(out)]) == 0
+        data = json.loads(out.read_text())
+        assert data["pooled"]["tp"] == tp and data["iou_match"] == (0.3 if extra else 0.5)
+        assert ("not the paper's 0.5" in capsys.readouterr().out) == note
+
+
 @pytest.mark.parametrize(
     "argv, needle",
     [
         (["eval"], "nothing to score"),
+        (["eval", "--dets", "a.csv", "--labels", "a.csv", "--iou", "1.5"], "--iou 1.5: expected a number between 0 and 1"),
         (["eval", "--dets", "a.csv", "b.csv", "--labels", "a.csv"], "--dets has 2 files but --labels has 1"),
         (["eval", "--split", "val", "--splits", "/nonexistent/splits.json"], "--splits /nonexistent/splits.json: no such file"),
         (["eval", "--clips", "/nonexistent/clip.mp4"], "--clips /nonexistent/clip.mp4: no such file"),

@@ -119,3 +119,20 @@ def test_lock_check_judges_the_mean_of_the_last_hits():
     assert [lock.add(p) for p in (0.9, 0.2, 0.5, 0.1, 0.1)] == [True, True, True, False, False]
     lock.update_config(0, 0.5)
     assert lock.add(0.0) is True  # off
+
+
+@pytest.mark.parametrize("smoothing, expected_wh", [(1.0, (4.0, 4.0)), (0.5, (7.0, 5.0))])
+def test_local_box_reports_the_tracked_size(tmp_path, smoothing, expected_wh):
+    # the spot detector's boxes are 4x4 px; the target's tracked size is set to 10x6 px after the
+    # global hit (as earlier hits would have left it): the reported local box blends the two
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.local.motion.enabled": False,
+                                   "detector.search_region.size_smoothing": smoothing})
+    assert glad.process(_spot_frame(0)).mode == "global"
+    glad.region.size_wh = (10.0, 6.0)
+    result = glad.process(_spot_frame(1))
+    assert result.mode == "local" and result.candidates.xywh[0, 2:].tolist() == [4.0, 4.0]
+    assert result.detections.xywh[0, 2:].tolist() == pytest.approx(expected_wh)
+    np.testing.assert_allclose(result.detections.centers[0], result.candidates.centers[0])
+    np.testing.assert_allclose(result.target.xyxy, result.detections.xyxy[0])
+    assert glad.region.size_wh == pytest.approx(expected_wh)

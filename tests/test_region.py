@@ -90,3 +90,25 @@ def test_switcher_hit_resets_miss_count_and_no_local_means_global():
     sw.after(False)
     assert sw.after(True) == LOCAL and sw.local_misses == 0
     assert Switcher(SwitcherConfig(), local_available=False).after(True) == GLOBAL
+
+
+def test_reported_size_is_smoothed_over_hits_and_restarts_with_a_new_target():
+    region = SearchRegion(SearchRegionConfig(size_smoothing=0.25))
+    region.start((500.0, 400.0), (20, 10))
+    region.predict(I3, 1 / 30)
+    region.hit((501.0, 400.0), (40, 30))
+    assert region.size_wh == pytest.approx((25.0, 15.0))  # 0.25 * new + 0.75 * tracked
+    region.predict(I3, 1 / 30)
+    region.hit((502.0, 400.0), (25, 15))
+    assert region.size_wh == pytest.approx((25.0, 15.0))
+    assert region.predicted_box() == pytest.approx([489.5, 392.5, 514.5, 407.5])
+    region.start((100.0, 100.0), (8, 6))  # a new target: its own size, nothing carried over
+    assert region.size_wh == (8.0, 6.0)
+
+
+def test_size_smoothing_one_reports_raw_boxes():
+    region = SearchRegion(SearchRegionConfig(size_smoothing=1.0))
+    region.start((500.0, 400.0), (20, 10))
+    region.predict(I3, 1 / 30)
+    region.hit((501.0, 400.0), (40, 30))
+    assert region.size_wh == (40.0, 30.0)

@@ -47,3 +47,11 @@ def test_sorted_shifted_and_geometry():
 def test_mismatched_lengths_rejected():
     with pytest.raises(ValueError, match="same length"):
         Detections([[0, 0, 1, 1]], [0.1, 0.2], ["GAD", "GAD"])
+
+
+def test_resized_keeps_centres_scores_and_modules():
+    d = Detections([[10, 20, 30, 40], [0, 0, 4, 2]], [0.9, 0.5], ["LAD", "LMD"])
+    r = d.resized((10, 6))
+    assert r.xyxy.tolist() == [[15, 27, 25, 33], [-3, -2, 7, 4]]
+    assert r.score.tolist() == pytest.approx([0.9, 0.5]) and r.module.tolist() == ["LAD", "LMD"]
+    assert d.xyxy.tolist()[0] == [10, 20, 30, 40]  # the input is not changed

@@ -227,6 +227,7 @@ class Glad:
                               None, region, timings)
         if len(best):
             self.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
+            best = best.resized(self.region.size_wh)
             target = self._target(frame, best, region=region)
         else:
             self.region.miss()

@@ -103,12 +103,16 @@ class SearchRegion:
         return self.center
 
     def hit(self, center_xy: Tuple[float, float], size_wh: Tuple[float, float]) -> None:
-        """A detection in the region: measure the target's own velocity and recentre."""
+        """A detection in the region: measure the target's own velocity, recentre, and blend
+        its size into the tracked size (``size_smoothing``)."""
         if self.cfg.adaptive and self._carried is not None:
             z = np.array([[center_xy[0] - self._carried[0]], [center_xy[1] - self._carried[1]]]) / self._dt_s
             self._kf.update(z)
         self.center = (float(center_xy[0]), float(center_xy[1]))
-        self.size_wh = (float(size_wh[0]), float(size_wh[1]))
+        # the drone's size changes slowly and the detector's box jitters around it
+        a = self.cfg.size_smoothing
+        self.size_wh = (a * float(size_wh[0]) + (1 - a) * self.size_wh[0],
+                        a * float(size_wh[1]) + (1 - a) * self.size_wh[1])
         self.misses = 0
 
     def miss(self) -> None:

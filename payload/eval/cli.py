@@ -18,7 +18,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence
 
 from payload.errors import DataError
 from payload.eval.labels import load_labels
-from payload.eval.metrics import ClipScore, pool, score_clip
+from payload.eval.metrics import IOU_MATCH, ClipScore, pool, score_clip
 from payload.records import read_detections_csv
 from payload.types import Detections
 
@@ -158,7 +158,7 @@ def synthetic_clips(cfg, out_dir: str, frames: int, seeds: Sequence[int],
     return [synthetic_clip(cfg, out_dir, frames, seed, target_px, video=False) for seed in seeds]
 
 
-def score_detection_files(dets: Sequence[str], labels: Sequence[str]) -> List[ClipScore]:
+def score_detection_files(dets: Sequence[str], labels: Sequence[str], iou_match: float = IOU_MATCH) -> List[ClipScore]:
     if len(dets) != len(labels):
         raise UsageError("--dets has %d files but --labels has %d (give one label file or folder per CSV)"
                          % (len(dets), len(labels)))
@@ -166,18 +166,18 @@ def score_detection_files(dets: Sequence[str], labels: Sequence[str]) -> List[Cl
     for dets_path, labels_path in zip(dets, labels):
         gt = load_labels(labels_path)
         found = read_detections_csv(dets_path)
-        scores.append(score_clip(os.path.splitext(os.path.basename(dets_path))[0], found, gt))
+        scores.append(score_clip(os.path.splitext(os.path.basename(dets_path))[0], found, gt, iou_match=iou_match))
     return scores
 
 
-def score_clips(clips: Sequence[ClipSpec], detect: DetectFn) -> List[ClipScore]:
+def score_clips(clips: Sequence[ClipSpec], detect: DetectFn, iou_match: float = IOU_MATCH) -> List[ClipScore]:
     """Run ``detect`` (clip -> frame -> Detections, every frame present) and score each clip."""
     labels = {clip.name: load_labels(clip.labels) for clip in clips}  # bad labels fail before any detection
     scores = []
     for clip in clips:
         found = detect(clip)
         frames = max(found) + 1 if found else 0
-        score = score_clip(clip.name, found, labels[clip.name], frames=frames)
+        score = score_clip(clip.name, found, labels[clip.name], frames=frames, iou_match=iou_match)
         log.info("eval clip=%s frames=%d gt=%d tp=%d fp=%d", clip.name, score.frames, score.gt, score.tp, score.fp)
         scores.append(score)
     return scores
@@ -205,10 +205,10 @@ def format_table(scores: Sequence[ClipScore], pooled: Optional[ClipScore] = None
     return "\n".join(lines)
 
 
-def write_json(path: str, scores: Sequence[ClipScore], pooled: ClipScore) -> None:
+def write_json(path: str, scores: Sequence[ClipScore], pooled: ClipScore, iou_match: float = IOU_MATCH) -> None:
     try:
         with open(path, "w", encoding="utf-8") as handle:
-            json.dump({"iou_match": 0.5, "clips": [s.as_dict() for s in scores], "pooled": pooled.as_dict()},
+            json.dump({"iou_match": iou_match, "clips": [s.as_dict() for s in scores], "pooled": pooled.as_dict()},
                       handle, indent=2)
             handle.write("\n")
     except OSError as exc:
@@ -234,13 +234,17 @@ def main_eval(args) -> int:
         return 2
     pooled = pool(scores)
     print(format_table(scores, pooled))
+    if args.iou != IOU_MATCH:
+        print("(matched at IoU > %g, not the paper's 0.5)" % args.iou)
     if args.json:
-        write_json(args.json, scores, pooled)
+        write_json(args.json, scores, pooled, args.iou)
         print("wrote %s" % args.json)
     return 0
 
 
 def _scores(args, tmp: str) -> List[ClipScore]:
+    if not 0.0 < args.iou < 1.0:
+        raise UsageError("--iou %s: expected a number between 0 and 1 (the paper uses 0.5)" % args.iou)
     sources = [name for name, given in (("--split", args.split), ("--clips", args.clips),
                                         ("--synthetic", args.synthetic)) if given]
     if len(sources) > 1:
@@ -257,7 +261,7 @@ def _scores(args, tmp: str) -> List[ClipScore]:
             clips = clips_from_paths(args.clips, args.labels)
         else:
             clips = synthetic_clips(cfg, tmp, args.frames, args.synthetic, args.target_px)
-        return score_clips(clips, _glad_detector(args, cfg))
+        return score_clips(clips, _glad_detector(args, cfg), args.iou)
     if args.dets:
-        return score_detection_files(args.dets, args.labels)
+        return score_detection_files(args.dets, args.labels, args.iou)
     raise UsageError("nothing to score: give --dets with --labels, --split NAME, --clips VIDEO... or --synthetic SEED...")
