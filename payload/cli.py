@@ -118,6 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     _add_synthetic_args(p, "run detect+score on")
     p.add_argument("--frames", type=int, default=150, help="--synthetic: frames per clip")
+    p.add_argument("--ego-motion", type=int, default=None, metavar="SEED",
+                   help="--split/--clips: warp every frame (and its labels) as if the camera turned, rolled, "
+                        "zoomed and shook, one camera path per clip from SEED")
     p.add_argument("--iou", type=float, default=0.5,
                    help="a detection matches a labelled box when their IoU exceeds this (default 0.5, the paper's)")
     p.set_defaults(func=_eval)

@@ -2,7 +2,7 @@
 
 import logging
 import os
-from typing import Dict, Iterator, Optional, Tuple
+from typing import Callable, Dict, Iterator, Optional, Tuple
 
 import cv2
 
@@ -35,9 +35,11 @@ def _frame_count(source: str) -> Optional[int]:
 
 
 def iter_glad(source: str, cfg: Config, limit: int = 0, progress: bool = True,
-              glad: Optional[Glad] = None, capture: Optional[CaptureConfig] = None) -> Iterator[Tuple[Frame, GladResult]]:
+              glad: Optional[Glad] = None, capture: Optional[CaptureConfig] = None,
+              warp: Optional[Callable[[Frame], Frame]] = None) -> Iterator[Tuple[Frame, GladResult]]:
     """Run GLAD over every frame of a recording (at most ``limit`` frames when > 0); ``capture``
-    replaces the recording (e.g. a finite synthetic scene), ``source`` then only names it."""
+    replaces the recording (e.g. a finite synthetic scene), ``source`` then only names it;
+    ``warp`` changes each frame first (e.g. synthetic ego-motion)."""
     if capture is None:
         cfg = recording_config(cfg, source)
         total = _frame_count(source)
@@ -57,6 +59,8 @@ def iter_glad(source: str, cfg: Config, limit: int = 0, progress: bool = True,
             for frame in frames:
                 if limit and frame.index >= limit:
                     break
+                if warp is not None:
+                    frame = warp(frame)
                 yield frame, glad.process(frame)
                 if bar is not None:
                     bar.update(1)
@@ -66,9 +70,11 @@ def iter_glad(source: str, cfg: Config, limit: int = 0, progress: bool = True,
 
 
 def run_detect(source: str, cfg: Config, limit: int = 0, progress: bool = True,
-               capture: Optional[CaptureConfig] = None) -> Dict[int, Detections]:
+               capture: Optional[CaptureConfig] = None,
+               warp: Optional[Callable[[Frame], Frame]] = None) -> Dict[int, Detections]:
     """Frame index -> GLAD's detections for that frame, over a whole recording (or ``capture``)."""
-    return {frame.index: result.detections for frame, result in iter_glad(source, cfg, limit, progress, capture=capture)}
+    return {frame.index: result.detections
+            for frame, result in iter_glad(source, cfg, limit, progress, capture=capture, warp=warp)}
 
 
 def main_detect(args) -> int:

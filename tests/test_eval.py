@@ -403,6 +403,7 @@ def test_synthetic_seeds_are_rendered_scored_and_named(tmp_path, capsys):
 @pytest.mark.parametrize("argv, needle", [
     (["eval", "--synthetic", "3", "--split", "val"], "give one of --split, --clips, --synthetic"),
     (["eval", "--synthetic", "3", "--target-px", "20", "10"], "--target-px 20.0 10.0: expected 0 < MIN <= MAX"),
+    (["eval", "--synthetic", "3", "--ego-motion", "1"], "--ego-motion warps recordings: give it with --split or --clips"),
 ])
 def test_synthetic_usage_errors(argv, needle, capsys):
     assert main(argv) == 2

@@ -136,3 +136,40 @@ def test_local_box_reports_the_tracked_size(tmp_path, smoothing, expected_wh):
     np.testing.assert_allclose(result.detections.centers[0], result.candidates.centers[0])
     np.testing.assert_allclose(result.target.xyxy, result.detections.xyxy[0])
     assert glad.region.size_wh == pytest.approx(expected_wh)
+
+
+def _spots_frame(index, spots):
+    """A black frame with 4x4 spots: (x, y, grey level) each, on 4-aligned cells."""
+    from payload.types import Frame
+
+    image = np.zeros((384, 640, 3), np.uint8)
+    for x, y, level in spots:
+        image[y:y + 4, x:x + 4] = level
+    return Frame(image, index, index * 33_000_000, 0)
+
+
+@pytest.mark.parametrize("second_frame, expected_x", [
+    ([(320, 200, 128), (420, 200, 255)], 422),  # a weak hit near the lock, a strong one 100 px away: retarget
+    ([(320, 200, 255), (420, 200, 255)], 322),  # as strong near the lock: it is kept
+    ([(420, 200, 100)], None),  # only a weak hit far away (score 0.39 < T0): no target this frame
+])
+def test_lock_moves_to_a_confident_hit_beyond_the_jump_gate(tmp_path, second_frame, expected_x):
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.classifier.threshold": 0.05, "detector.local.motion.enabled": False})
+    assert glad.process(_spots_frame(0, [(320, 200, 255)])).mode == "global"
+    result = glad.process(_spots_frame(1, second_frame))
+    assert result.mode == "local"
+    if expected_x is None:
+        assert len(result.detections) == 0 and not result.target.measured
+    else:
+        assert result.detections.centers[0].tolist() == [expected_x, 202]
+        assert glad.region.center == pytest.approx((expected_x, 202))
+
+
+def test_no_retarget_without_the_jump_gate(tmp_path):
+    # max_jump_px 0: every hit in the region is near enough; the most confident one is taken anyway
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.switcher.max_jump_px": 0, "detector.local.motion.enabled": False})
+    glad.process(_spots_frame(0, [(320, 200, 255)]))
+    result = glad.process(_spots_frame(1, [(320, 200, 128), (420, 200, 255)]))
+    assert result.detections.centers[0].tolist() == [422, 202]

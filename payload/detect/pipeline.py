@@ -6,7 +6,10 @@ Per frame one detector runs, chosen by the switcher:
 - local: appearance (LAD) inside the search region at native resolution; only if it finds
   nothing, motion (LMD) inside the region, checked by the classifier.
 A hit moves/keeps the switcher on local and updates the search region; a local miss grows
-the region around its prediction until the switcher gives up.
+the region around its prediction until the switcher gives up. Local hits farther than
+max_jump_px from the prediction are ignored, unless one would have started a target globally
+(score >= T0, confirmed by the classifier) and beats the hits near the prediction: then the
+target starts again there.
 """
 
 import logging
@@ -184,10 +187,7 @@ class Glad:
         t = time.perf_counter()
         target = None
         if len(best):
-            self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
-            self.lock.reset()
-            self._lock_holds(frame.image, best, timings)
-            target = self._target(frame, best, region=None)
+            target = self._acquire(frame, best, timings)
         self.switcher.after(hit=bool(len(best)))
         timings["switcher"] = _ms(t)
         return GladResult(frame.index, frame.t_capture_ns, GLOBAL, best, Detections.concat(candidates), target, None, timings)
@@ -218,6 +218,15 @@ class Glad:
             candidates.append(motion.detections)
         t = time.perf_counter()
         best = self._pick(found, predicted)
+        retarget = self._retarget(frame.image, found, best, predicted, timings)
+        if len(retarget):
+            # a confident, confirmed hit away from the prediction, stronger than anything near it:
+            # the lock was on clutter or had lost the target; start again there
+            target = self._acquire(frame, retarget, timings)
+            self.switcher.after(hit=True)
+            timings["switcher"] = _ms(t)
+            return GladResult(frame.index, frame.t_capture_ns, LOCAL, retarget, Detections.concat(candidates),
+                              target, region, timings)
         if len(best) and not self._lock_holds(frame.image, best, timings):
             # the classifier does not believe in what is being followed: search globally again
             self.region.reset()
@@ -252,6 +261,33 @@ class Glad:
         if not estimate.ok:
             return np.eye(3)
         return _to_full_frame(estimate, grey.scale_xy(grey.ego)).matrix
+
+    def _acquire(self, frame: Frame, best: Detections, timings: Dict[str, float]) -> Target:
+        """A new target: the search region starts around it and its lock is judged afresh."""
+        self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
+        self.lock.reset()
+        self._lock_holds(frame.image, best, timings)
+        return self._target(frame, best, region=None)
+
+    def _retarget(self, image: np.ndarray, found: Detections, near: Detections, predicted_xy,
+                  timings: Dict[str, float]) -> Detections:
+        """A local appearance hit beyond max_jump_px of the prediction that the global detector
+        would have taken (score >= T0), the classifier confirms, and that beats the hit near it."""
+        if self.cfg.switcher.max_jump_px <= 0 or not len(found):
+            return Detections.empty()
+        floor = max(self.cfg.global_.appearance.confidence, float(near.score[0]) if len(near) else 0.0)
+        distance = np.hypot(*(found.centers - np.asarray(predicted_xy, np.float32)).T)
+        far = found[(found.module == LAD) & (found.score > floor) & (distance > self.cfg.switcher.max_jump_px)]
+        if not len(far):
+            return far
+        best = far.sorted_by_score()[:1]
+        classifier = self.models.classifier
+        if classifier is not None and self.cfg.classifier.enabled:
+            t = time.perf_counter()
+            confirmed = classifier.filter(image, best, rescore=False)
+            timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
+            return confirmed
+        return best
 
     def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float]) -> Detections:
         """The hits the classifier confirms, for the modules it checks (cfg.classifier.modules).

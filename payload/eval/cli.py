@@ -3,10 +3,12 @@
 Two modes:
 - ``--dets A.csv B.csv --labels A.csv B.csv``: score existing detections, pairwise.
 - ``--split val[,negatives_val]`` (Halmstad splits.json) or ``--clips a.mp4 ...``: run the
-  detector over each clip, then score.
+  detector over each clip, then score; ``--ego-motion SEED`` warps those recordings (frames and
+  labels) as if the camera moved.
 Both print one row per clip and a POOLED row (counts summed, detections ranked together).
 """
 
+import dataclasses
 import json
 import logging
 import math
@@ -35,13 +37,15 @@ class ClipSpec:
     """A clip to run the detector on and the labels to score it against.
 
     ``capture``: where the frames come from when they are not the ``video`` file (a synthetic
-    scene rendered in memory); ``video`` then only names it.
+    scene rendered in memory); ``video`` then only names it. ``ego_motion``: frames and labels
+    warped as if filmed by a moving camera (``--ego-motion``).
     """
 
     name: str
     video: str
     labels: str
     capture: Optional[Any] = None  # payload.config.CaptureConfig
+    ego_motion: Optional[Any] = None  # payload.synth.ego_motion.EgoMotionWarp
 
 
 class UsageError(Exception):
@@ -158,6 +162,25 @@ def synthetic_clips(cfg, out_dir: str, frames: int, seeds: Sequence[int],
     return [synthetic_clip(cfg, out_dir, frames, seed, target_px, video=False) for seed in seeds]
 
 
+def with_ego_motion(clips: Sequence[ClipSpec], seed: int) -> List[ClipSpec]:
+    """The recordings warped by synthetic camera motion, one seeded camera path per clip."""
+    import cv2
+
+    from payload.synth.ego_motion import EgoMotionWarp
+
+    warped = []
+    for position, clip in enumerate(clips):
+        cap = cv2.VideoCapture(clip.video)
+        size_wh = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        fps = cap.get(cv2.CAP_PROP_FPS)
+        cap.release()
+        if min(size_wh) <= 0:
+            raise UsageError("%s: cannot read the video's frame size for --ego-motion" % clip.video)
+        warp = EgoMotionWarp((seed, position), size_wh, fps)
+        warped.append(dataclasses.replace(clip, name=clip.name + "~ego%d" % seed, ego_motion=warp))
+    return warped
+
+
 def score_detection_files(dets: Sequence[str], labels: Sequence[str], iou_match: float = IOU_MATCH) -> List[ClipScore]:
     if len(dets) != len(labels):
         raise UsageError("--dets has %d files but --labels has %d (give one label file or folder per CSV)"
@@ -177,7 +200,8 @@ def score_clips(clips: Sequence[ClipSpec], detect: DetectFn, iou_match: float = 
     for clip in clips:
         found = detect(clip)
         frames = max(found) + 1 if found else 0
-        score = score_clip(clip.name, found, labels[clip.name], frames=frames, iou_match=iou_match)
+        gt = labels[clip.name] if clip.ego_motion is None else clip.ego_motion.labels(labels[clip.name])
+        score = score_clip(clip.name, found, gt, frames=frames, iou_match=iou_match)
         log.info("eval clip=%s frames=%d gt=%d tp=%d fp=%d", clip.name, score.frames, score.gt, score.tp, score.fp)
         scores.append(score)
     return scores
@@ -220,7 +244,9 @@ def _glad_detector(args, cfg) -> DetectFn:
     from payload.detect_cmd import run_detect
 
     def detect(clip: ClipSpec) -> Dict[int, Detections]:
-        return run_detect(clip.video, cfg, limit=args.limit, progress=not args.no_progress, capture=clip.capture)
+        warp = clip.ego_motion.frame if clip.ego_motion is not None else None
+        return run_detect(clip.video, cfg, limit=args.limit, progress=not args.no_progress, capture=clip.capture,
+                          warp=warp)
 
     return detect
 
@@ -243,6 +269,8 @@ def main_eval(args) -> int:
 
 
 def _scores(args, tmp: str) -> List[ClipScore]:
+    if args.ego_motion is not None and not (args.split or args.clips):
+        raise UsageError("--ego-motion warps recordings: give it with --split or --clips")
     if not 0.0 < args.iou < 1.0:
         raise UsageError("--iou %s: expected a number between 0 and 1 (the paper uses 0.5)" % args.iou)
     sources = [name for name, given in (("--split", args.split), ("--clips", args.clips),
@@ -261,6 +289,8 @@ def _scores(args, tmp: str) -> List[ClipScore]:
             clips = clips_from_paths(args.clips, args.labels)
         else:
             clips = synthetic_clips(cfg, tmp, args.frames, args.synthetic, args.target_px)
+        if args.ego_motion is not None:
+            clips = with_ego_motion(clips, args.ego_motion)
         return score_clips(clips, _glad_detector(args, cfg), args.iou)
     if args.dets:
         return score_detection_files(args.dets, args.labels, args.iou)
