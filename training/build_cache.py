@@ -9,6 +9,9 @@ cls_y.npy [K] 1 = drone, 0 = clutter; clutter = random background boxes, bird/pl
 boxes, and frame-difference blobs away from the label (what a motion detector proposes).
 
 Usage: python training/build_cache.py [--crop 256] [--every 4]
+       python training/build_cache.py --split ir_train --name ir   # thermal: ir_det.npz, ir_cls.npz
+With --name, the drone clips of --split are written as extra sets for train_det/train_cls --synth
+(<name>_det.npz: images, xyxy with NaN where no drone; <name>_cls.npz: x, y); no negatives clips.
 """
 
 import argparse
@@ -109,6 +112,8 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--crop", type=int, default=256)
     ap.add_argument("--every", type=int, default=4)
+    ap.add_argument("--split", default="train", help="drone clips to read (train, ir_train)")
+    ap.add_argument("--name", default=None, help="write <name>_det.npz and <name>_cls.npz instead of the main cache")
     args = ap.parse_args()
     rng = np.random.default_rng(0)
     os.makedirs(CACHE, exist_ok=True)
@@ -116,7 +121,7 @@ def main():
     pos, pos_xyxy, neg, cls_x, cls_y = [], [], [], [], []
     side = args.crop
 
-    for ci, clip in enumerate(sp["train"]):
+    for ci, clip in enumerate(sp[args.split]):
         lab = labels(clip)
         prev = None
         for i, img in frames(clip):
@@ -141,7 +146,16 @@ def main():
                     cls_x.append(crop_patches(img, np.array(bg)))
                     cls_y += [0] * len(bg)
             prev = img
-        print("train %d/%d %s pos=%d neg=%d cls=%d" % (ci + 1, len(sp["train"]), clip, len(pos), len(neg), len(cls_y)), flush=True)
+        print("%s %d/%d %s pos=%d neg=%d cls=%d" % (args.split, ci + 1, len(sp[args.split]), clip, len(pos), len(neg),
+                                                  len(cls_y)), flush=True)
+
+    if args.name:
+        nan = np.full((len(neg), 4), np.nan, np.float32)
+        np.savez(os.path.join(CACHE, args.name + "_det.npz"), images=np.stack(pos + neg),
+                 xyxy=np.concatenate([np.stack(pos_xyxy).astype(np.float32), nan]))
+        np.savez(os.path.join(CACHE, args.name + "_cls.npz"), x=np.concatenate(cls_x), y=np.array(cls_y, np.uint8))
+        print("done %s pos=%d neg=%d cls=%d (drone %d)" % (args.name, len(pos), len(neg), len(cls_y), int(np.sum(cls_y))))
+        return
 
     for ci, clip in enumerate(sp["negatives_train"]):
         lab = labels(clip)

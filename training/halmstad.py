@@ -30,7 +30,8 @@ def labels(clip: str, root: str = HALMSTAD) -> Dict[int, List[Tuple[str, np.ndar
 
 
 def frames(clip: str, root: str = HALMSTAD) -> Iterator[Tuple[int, np.ndarray]]:
-    cap = cv2.VideoCapture(os.path.join(root, "visible", clip + ".mp4"))
+    folder = "ir" if clip.startswith("IR_") else "visible"
+    cap = cv2.VideoCapture(os.path.join(root, folder, clip + ".mp4"))
     i = 0
     while True:
         ok, img = cap.read()
