@@ -97,3 +97,10 @@ class ClassifierExport(nn.Module):
 
 def count_params(m):
     return sum(p.numel() for p in m.parameters())
+
+
+def training_device() -> torch.device:
+    """The CUDA GPU when there is one (training runs there), else the CPU."""
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    print("training on %s" % (torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"), flush=True)
+    return device

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.detect.patches import patches_to_input  # noqa: E402
-from training.net import PatchClassifier, count_params  # noqa: E402
+from training.net import PatchClassifier, count_params, training_device  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CACHE = os.path.join(HERE, "cache")
@@ -55,12 +55,13 @@ def main():
     perm = rng.permutation(len(Y))
     hold, train = perm[: len(Y) // 10], perm[len(Y) // 10:]
     pos, neg = train[Y[train] == 1], train[Y[train] == 0]
-    net = PatchClassifier()
+    device = training_device()
+    net = PatchClassifier().to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     step = 0
     last = os.path.join(run, "last.pt")
     if args.resume and os.path.exists(last):
-        ck = torch.load(last, weights_only=False)
+        ck = torch.load(last, weights_only=False, map_location=device)
         net.load_state_dict(ck["model"])
         opt.load_state_dict(ck["opt"])
         step = ck["step"]
@@ -71,8 +72,8 @@ def main():
         for g in opt.param_groups:
             g["lr"] = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
         idx = np.concatenate([rng.choice(pos, args.batch // 2), rng.choice(neg, args.batch // 2)])
-        x = torch.from_numpy(patches_to_input(augment(rng, X[idx])))
-        loss = F.cross_entropy(net(x), torch.from_numpy(Y[idx]))
+        x = torch.from_numpy(patches_to_input(augment(rng, X[idx]))).to(device)
+        loss = F.cross_entropy(net(x), torch.from_numpy(Y[idx]).to(device))
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -80,8 +81,8 @@ def main():
         if step % 200 == 0 or step == args.steps:
             net.eval()
             with torch.no_grad():
-                p = torch.cat([torch.softmax(net(torch.from_numpy(patches_to_input(X[hold[i:i + 2048]]))), 1)[:, 1]
-                               for i in range(0, len(hold), 2048)]).numpy()
+                p = torch.cat([torch.softmax(net(torch.from_numpy(patches_to_input(X[hold[i:i + 2048]])).to(device)), 1)[:, 1]
+                               for i in range(0, len(hold), 2048)]).cpu().numpy()
             y = Y[hold]
             tp = int(((p >= 0.5) & (y == 1)).sum())
             prec = tp / max(1, int((p >= 0.5).sum()))

@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from training.net import STRIDE, TinyCenterNet, count_params  # noqa: E402
+from training.net import STRIDE, TinyCenterNet, count_params, training_device  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CACHE = os.path.join(HERE, "cache")
@@ -160,12 +160,13 @@ def main():
     torch.set_num_threads(args.threads)
     run = os.path.join(HERE, "runs", args.name)
     os.makedirs(run, exist_ok=True)
-    net = TinyCenterNet(args.width)
+    device = training_device()
+    net = TinyCenterNet(args.width).to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     step = 0
     last = os.path.join(run, "last.pt")
     if args.resume and os.path.exists(last):
-        ck = torch.load(last, weights_only=False)
+        ck = torch.load(last, weights_only=False, map_location=device)
         net.load_state_dict(ck["model"])
         opt.load_state_dict(ck["opt"])
         step = ck["step"]
@@ -180,11 +181,12 @@ def main():
 
         calibration = [sampler.batch(args.batch)[0] for _ in range(4)]
         net = load_onnx_detector(args.init, args.width, calibration)
-        opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
         print("init from %s (BatchNorm folded in the graph: re-split on 4 batches; max abs difference to the "
               "ONNX output on one of them: %.2e)" % (args.init, max_abs_diff(net, args.init, calibration[0])), flush=True)
+        net = net.to(device)
+        opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     elif step == 0 and args.init:
-        net.load_state_dict(torch.load(args.init, weights_only=False)["model"])
+        net.load_state_dict(torch.load(args.init, weights_only=False, map_location=device)["model"])
         print("init from %s" % args.init, flush=True)
     print("params=%d steps=%d batch=%d size=%d" % (count_params(net), args.steps, args.batch, args.size), flush=True)
     net.train()
@@ -195,7 +197,8 @@ def main():
         for g in opt.param_groups:
             g["lr"] = lr
         x, boxes = sampler.batch(args.batch)
-        hm, reg, mask = targets(boxes, args.size)
+        x = x.to(device)
+        hm, reg, mask = (t.to(device) for t in targets(boxes, args.size))
         out = net(x)
         l_hm = focal_loss(out[:, 0:1], hm)
         npos = mask.sum().clamp(min=1)
