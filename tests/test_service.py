@@ -210,6 +210,8 @@ def test_autopilot_killed_and_back(tmp_path):
     payload = start_payload(config, log_path=log_path)
     try:
         wait_for(lambda: any(r["type"] in TARGET_TYPES for r in read_record(first)), 120, "first target message")
+        # targets go out before the autopilot's heartbeat is in: only one that was found can be lost
+        wait_for(lambda: "autopilot found" in open(log_path).read(), 15, "the autopilot to be found")
         autopilot.kill()
         autopilot.wait()
         wait_for(lambda: "autopilot lost" in open(log_path).read(), 15, "the loss to be logged")
