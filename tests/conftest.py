@@ -1,6 +1,9 @@
 """Shared test fixtures. Data under ../shared is optional: tests that need it skip cleanly."""
 
+import importlib.util
 import os
+import shutil
+import sys
 
 import numpy as np
 import pytest
@@ -19,3 +22,13 @@ def halmstad_dir():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture
+def mavproxy_script():
+    """This interpreter's MAVProxy script (run it with sys.executable); skips where it is missing.
+    A mavproxy.py of another environment on PATH is no use: its MAVProxy cannot be imported here."""
+    script = shutil.which("mavproxy.py", path=os.path.dirname(sys.executable))
+    if importlib.util.find_spec("MAVProxy") is None or script is None:
+        pytest.skip("MAVProxy is not installed (pip install --no-deps MAVProxy pyserial)")
+    return script

@@ -6,7 +6,6 @@ import importlib.util
 import json
 import math
 import os
-import shutil
 import socket
 import subprocess
 import sys
@@ -420,17 +419,9 @@ def test_signed_link(fakes, tmp_path):
         assert not link2.status.autopilot_seen and link2.status.rejected >= 1
 
 
-def _mavproxy():
-    if importlib.util.find_spec("MAVProxy") is None:
-        return None
-    return shutil.which("mavproxy.py") or shutil.which("mavproxy.py", path=os.path.dirname(sys.executable))
-
-
 @pytest.mark.slow
-def test_link_through_mavproxy(fakes, tmp_path):
-    exe = _mavproxy()
-    if exe is None:
-        pytest.skip("MAVProxy not installed (pip install --no-deps MAVProxy pyserial)")
+def test_link_through_mavproxy(fakes, tmp_path, mavproxy_script):
+    exe = mavproxy_script
     port_ap, port_out = free_port(), free_port()
     fake = start_fake(fakes, tmp_path, f"udpout:127.0.0.1:{port_ap}")
     log = open(str(tmp_path / "mavproxy.log"), "w")

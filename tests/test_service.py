@@ -1,11 +1,9 @@
 """The payload as a process (`glad-payload run`) against the fake autopilot over real UDP."""
 
 import csv
-import importlib.util
 import json
 import math
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -182,11 +180,8 @@ def test_run_against_fake_autopilot_over_udp(tmp_path):
     run_exchange(tmp_path, port, port)
 
 
-def test_run_with_mavproxy_in_the_middle(tmp_path):
-    # the script of this interpreter's MAVProxy: another one on PATH (another venv) cannot import here
-    mavproxy = shutil.which("mavproxy.py", path=os.path.dirname(sys.executable))
-    if importlib.util.find_spec("MAVProxy") is None or mavproxy is None:
-        pytest.skip("MAVProxy is not installed (pip install --no-deps MAVProxy)")
+def test_run_with_mavproxy_in_the_middle(tmp_path, mavproxy_script):
+    mavproxy = mavproxy_script
     payload_port, autopilot_port = free_udp_port(), free_udp_port()
     # MAVProxy listens for the payload and forwards to the autopilot, as a GCS-side router would.
     router = subprocess.Popen(

@@ -100,6 +100,15 @@ def within_crop_reach(box, other, side=256):
             and abs((other[1] + other[3]) / 2 - (box[1] + box[3]) / 2) < reach)
 
 
+def save_extra_sets(name, cls_x, cls_y, det_images=None, det_xyxy=None):
+    """Write the sets train_cls / train_det read with --synth: <name>_cls.npz (x, y) and, given
+    crops, <name>_det.npz (images, xyxy with NaN where the crop holds no drone)."""
+    np.savez(os.path.join(CACHE, name + "_cls.npz"), x=np.asarray(cls_x), y=np.asarray(cls_y, np.uint8))
+    if det_images is not None and len(det_images):
+        np.savez(os.path.join(CACHE, name + "_det.npz"), images=np.asarray(det_images),
+                 xyxy=np.asarray(det_xyxy, np.float32))
+
+
 def jitter(rng, box, amount=0.15):
     w, h = box[2] - box[0], box[3] - box[1]
     s = rng.uniform(1 - amount, 1 + amount)
@@ -151,9 +160,8 @@ def main():
 
     if args.name:
         nan = np.full((len(neg), 4), np.nan, np.float32)
-        np.savez(os.path.join(CACHE, args.name + "_det.npz"), images=np.stack(pos + neg),
-                 xyxy=np.concatenate([np.stack(pos_xyxy).astype(np.float32), nan]))
-        np.savez(os.path.join(CACHE, args.name + "_cls.npz"), x=np.concatenate(cls_x), y=np.array(cls_y, np.uint8))
+        save_extra_sets(args.name, np.concatenate(cls_x), cls_y, np.stack(pos + neg),
+                        np.concatenate([np.stack(pos_xyxy).astype(np.float32), nan]))
         print("done %s pos=%d neg=%d cls=%d (drone %d)" % (args.name, len(pos), len(neg), len(cls_y), int(np.sum(cls_y))))
         return
 

@@ -19,7 +19,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.detect.patches import crop_patches  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
-from training.build_cache import CACHE, crop_with, jitter, random_boxes, random_free_crop  # noqa: E402
+from training.build_cache import crop_with, jitter, random_boxes, random_free_crop, save_extra_sets  # noqa: E402
 
 
 def compensated_blobs(prev, img, homography, avoid, n):
@@ -71,8 +71,7 @@ def main():
                     cls_y += [0] * len(neg)
             prev = img
         print("scene %d/%d seed=%d det=%d cls=%d" % (s + 1, args.scenes, seed, len(images), len(cls_y)), flush=True)
-    np.savez(os.path.join(CACHE, args.name + "_det.npz"), images=np.stack(images), xyxy=np.stack(boxes))
-    np.savez(os.path.join(CACHE, args.name + "_cls.npz"), x=np.concatenate(cls_x), y=np.array(cls_y, np.uint8))
+    save_extra_sets(args.name, np.concatenate(cls_x), cls_y, np.stack(images), np.stack(boxes))
     print("done det=%d (with drone %d) cls=%d (drone %d)"
           % (len(images), int(np.isfinite(np.stack(boxes)[:, 0]).sum()), len(cls_y), int(np.sum(cls_y))))
 

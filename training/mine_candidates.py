@@ -35,7 +35,7 @@ from payload.detect.onnx_model import OnnxModel  # noqa: E402
 from payload.detect.patches import crop_patches  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
 from payload.types import GAD, GMD, LAD, LMD  # noqa: E402
-from training.build_cache import CACHE, crop_with, iou, jitter, within_crop_reach  # noqa: E402
+from training.build_cache import crop_with, iou, jitter, save_extra_sets, within_crop_reach  # noqa: E402
 from training.halmstad import frames, labels, splits  # noqa: E402
 
 REGION_PX = 300
@@ -150,10 +150,9 @@ def main():
                     miner.frame(img, prev, drones[0] if drones else None)
                 prev = img
             print("%s %s %s" % (split, clip, miner.summary()), flush=True)
-    np.savez(os.path.join(CACHE, args.name + "_cls.npz"), x=np.concatenate(miner.cls_x), y=np.array(miner.cls_y, np.uint8))
-    if miner.det_neg:
-        np.savez(os.path.join(CACHE, args.name + "_det.npz"), images=np.stack(miner.det_neg),
-                 xyxy=np.full((len(miner.det_neg), 4), np.nan, np.float32))
+    det_neg = np.stack(miner.det_neg) if miner.det_neg else None
+    save_extra_sets(args.name, np.concatenate(miner.cls_x), miner.cls_y, det_neg,
+                    np.full((len(miner.det_neg), 4), np.nan, np.float32))
     print("done", miner.summary())
 
 

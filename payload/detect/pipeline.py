@@ -217,8 +217,9 @@ class Glad:
             found = self._classify(frame.image, motion.detections, timings)
             candidates.append(motion.detections)
         t = time.perf_counter()
-        best = self._pick(found, predicted)
-        retarget = self._retarget(frame.image, found, best, predicted, timings)
+        near, near_distance, far = self._gate(found, predicted)
+        best = self._pick(near, near_distance)
+        retarget = self._retarget(frame.image, far, best, timings)
         if len(retarget):
             # a confident, confirmed hit away from the prediction, stronger than anything near it:
             # the lock was on clutter or had lost the target; start again there
@@ -269,25 +270,15 @@ class Glad:
         self._lock_holds(frame.image, best, timings)
         return self._target(frame, best, region=None)
 
-    def _retarget(self, image: np.ndarray, found: Detections, near: Detections, predicted_xy,
+    def _retarget(self, image: np.ndarray, far: Detections, near_best: Detections,
                   timings: Dict[str, float]) -> Detections:
-        """A local appearance hit beyond max_jump_px of the prediction that the global detector
-        would have taken (score >= T0), the classifier confirms, and that beats the hit near it."""
-        if self.cfg.switcher.max_jump_px <= 0 or not len(found):
-            return Detections.empty()
-        floor = max(self.cfg.global_.appearance.confidence, float(near.score[0]) if len(near) else 0.0)
-        distance = np.hypot(*(found.centers - np.asarray(predicted_xy, np.float32)).T)
-        far = found[(found.module == LAD) & (found.score > floor) & (distance > self.cfg.switcher.max_jump_px)]
+        """The strongest local appearance hit beyond the gate (``far``) if the global detector would
+        have taken it (score > T0), the classifier confirms it, and it beats the chosen near hit."""
+        floor = max(self.cfg.global_.appearance.confidence, float(near_best.score[0]) if len(near_best) else 0.0)
+        far = far[(far.module == LAD) & (far.score > floor)]
         if not len(far):
             return far
-        best = far.sorted_by_score()[:1]
-        classifier = self.models.classifier
-        if classifier is not None and self.cfg.classifier.enabled:
-            t = time.perf_counter()
-            confirmed = classifier.filter(image, best, rescore=False)
-            timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
-            return confirmed
-        return best
+        return self._confirm(image, far.sorted_by_score()[:1], rescore=False, timings=timings)
 
     def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float]) -> Detections:
         """The hits the classifier confirms, for the modules it checks (cfg.classifier.modules).
@@ -295,12 +286,17 @@ class Glad:
         Motion hits take the classifier's probability as their score (the motion detector has no
         score of its own); appearance hits keep the detector's confidence.
         """
+        if not len(dets) or dets.module[0] not in self.cfg.classifier.modules:
+            return dets
+        return self._confirm(image, dets, rescore=dets.module[0] in (GMD, LMD), timings=timings)
+
+    def _confirm(self, image: np.ndarray, dets: Detections, rescore: bool, timings: Dict[str, float]) -> Detections:
+        """The hits the classifier confirms; all of them when it is off or absent."""
         classifier = self.models.classifier
-        cfg = self.cfg.classifier
-        if not len(dets) or classifier is None or not cfg.enabled or dets.module[0] not in cfg.modules:
+        if not len(dets) or classifier is None or not self.cfg.classifier.enabled:
             return dets
         t = time.perf_counter()
-        kept = classifier.filter(image, dets, rescore=dets.module[0] in (GMD, LMD))
+        kept = classifier.filter(image, dets, rescore=rescore)
         timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
         return kept
 
@@ -313,18 +309,20 @@ class Glad:
         timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
         return self.lock.add(probability)
 
-    def _pick(self, found: Detections, predicted_xy) -> Detections:
-        """Local choice among several boxes: by confidence or by distance to the prediction."""
-        if not len(found):
-            return found
+    def _gate(self, found: Detections, predicted_xy) -> Tuple[Detections, np.ndarray, Detections]:
+        """Local hits split at max_jump_px from the prediction: (near, their distances, far).
+        With the gate off (0) every hit is near."""
         distance = np.hypot(*(found.centers - np.asarray(predicted_xy, np.float32)).T)
-        if self.cfg.switcher.max_jump_px > 0:
-            keep = distance <= self.cfg.switcher.max_jump_px
-            found, distance = found[keep], distance[keep]
-            if not len(found):
-                return found
-        order = np.argsort(distance) if self.cfg.switcher.pick == "distance" else np.argsort(-found.score, kind="stable")
-        return found[order[:1]]
+        jump = self.cfg.switcher.max_jump_px
+        near = distance <= jump if jump > 0 else np.ones(len(found), bool)
+        return found[near], distance[near], found[~near]
+
+    def _pick(self, near: Detections, distance: np.ndarray) -> Detections:
+        """Local choice among the near hits: by confidence or by distance to the prediction."""
+        if not len(near):
+            return near
+        order = np.argsort(distance) if self.cfg.switcher.pick == "distance" else np.argsort(-near.score, kind="stable")
+        return near[order[:1]]
 
     @staticmethod
     def _target(frame: Frame, best: Detections, region) -> Target:

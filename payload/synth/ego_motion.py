@@ -8,6 +8,7 @@ have filmed (minus the parallax that translation adds). The camera zooms in a li
 so that the turns stay inside the recorded frame; borders are mirrored where they do not.
 """
 
+import dataclasses
 import math
 from typing import Dict, List, Tuple
 
@@ -41,9 +42,8 @@ class EgoMotionWarp:
         self.size_wh = (int(size_wh[0]), int(size_wh[1]))
         self.dt_s = 1.0 / float(fps if fps and fps > 0 else 30.0)
         w, h = self.size_wh
-        focal = (w / 2.0) / math.tan(HFOV_RAD / 2.0)
-        self._k = intrinsics(focal, w / 2.0, h / 2.0)
-        self._k_inv = np.linalg.inv(self._k)
+        self._focal_px = (w / 2.0) / math.tan(HFOV_RAD / 2.0)
+        self._k_inv = np.linalg.inv(intrinsics(self._focal_px, w / 2.0, h / 2.0))
         rng = np.random.default_rng(seed)
         self._yaw = Wander(rng, 0.0, YAW_STD_RAD, TURN_TAU_S, rng.normal(0.0, YAW_STD_RAD), smooth_s=0.3)
         self._pitch = Wander(rng, 0.0, PITCH_STD_RAD, TURN_TAU_S, rng.normal(0.0, PITCH_STD_RAD), smooth_s=0.3)
@@ -66,17 +66,15 @@ class EgoMotionWarp:
         sy, sp, sr = (s.step(dt) for s in self._shake)
         rotation = attitude(self._roll.step(dt) + sr, self._pitch.step(dt) + sp, self._yaw.step(dt) + sy)
         zoom = float(np.clip(math.exp(self._log_zoom.step(dt)), *ZOOM_RANGE))
-        k_zoom = self._k.copy()
-        k_zoom[0, 0] *= zoom
-        k_zoom[1, 1] *= zoom
-        return k_zoom @ rotation.T @ self._k_inv
+        w, h = self.size_wh
+        return intrinsics(self._focal_px * zoom, w / 2.0, h / 2.0) @ rotation.T @ self._k_inv
 
     def frame(self, frame: Frame) -> Frame:
         """The recorded frame as the moving camera would have seen it."""
         h = self.homography(frame.index)
         image = cv2.warpPerspective(frame.image, h, self.size_wh, flags=cv2.INTER_LINEAR,
                                     borderMode=cv2.BORDER_REFLECT_101)
-        return Frame(image, frame.index, frame.t_capture_ns, frame.t_wall_ns)
+        return dataclasses.replace(frame, image=image)
 
     def boxes(self, index: int, xyxy: np.ndarray) -> np.ndarray:
         """Labelled ``xyxy`` boxes of frame ``index`` moved into the warped frame: the box around
