@@ -10,6 +10,8 @@ boxes, and frame-difference blobs away from the label (what a motion detector pr
 
 Usage: python training/build_cache.py [--crop 256] [--every 4]
        python training/build_cache.py --split ir_train --name ir   # thermal: ir_det.npz, ir_cls.npz
+       python training/build_cache.py --name ego --ego-motion 1 --every 8   # train clips, moving camera
+       python training/build_cache.py --split negatives_train --name objects --objects   # birds etc.
 With --name, the drone clips of --split are written as extra sets for train_det/train_cls --synth
 (<name>_det.npz: images, xyxy with NaN where no drone; <name>_cls.npz: x, y); no negatives clips.
 """
@@ -23,9 +25,13 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.detect.patches import crop_patches  # noqa: E402
+from payload.synth.ego_motion import EgoMotionWarp  # noqa: E402
 from training.halmstad import frames, labels, splits  # noqa: E402
 
 CACHE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "cache")
+
+
+OBJECT_JITTERS = 2
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -117,25 +123,56 @@ def jitter(rng, box, amount=0.15):
     return np.array([cx - w * s / 2, cy - h * s / 2, cx + w * s / 2, cy + h * s / 2], np.float32)
 
 
+def clip_frames(clip, ego_seed=None):
+    """(index, image, drone boxes, other boxes) per frame; with ``ego_seed``, as a turning, rolling,
+    zooming, shaking camera would have filmed the clip (payload.synth.ego_motion, the warp that
+    `glad-payload eval --ego-motion` applies to val)."""
+    lab = labels(clip)
+    warp = None
+    for i, img in frames(clip):
+        boxes = lab.get(i, [])
+        if ego_seed is not None:
+            if warp is None:
+                warp = EgoMotionWarp(ego_seed, (img.shape[1], img.shape[0]))
+            img = cv2.warpPerspective(img, warp.homography(i), warp.size_wh, flags=cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_REFLECT_101)
+            boxes = [(c, m[0]) for c, b in boxes for m in [warp.boxes(i, b)] if len(m)]
+        yield i, img, [b for c, b in boxes if c == "DRONE"], [b for c, b in boxes if c != "DRONE"]
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--crop", type=int, default=256)
     ap.add_argument("--every", type=int, default=4)
     ap.add_argument("--split", default="train", help="drone clips to read (train, ir_train)")
     ap.add_argument("--name", default=None, help="write <name>_det.npz and <name>_cls.npz instead of the main cache")
+    ap.add_argument("--objects", action="store_true",
+                    help="only the classifier patches of the labelled birds/airliners/helicopters of --split "
+                         "(e.g. negatives_train), %d jittered per object every 2nd frame: <name>_cls.npz" % OBJECT_JITTERS)
+    ap.add_argument("--ego-motion", type=int, default=None, metavar="SEED",
+                    help="warp each clip by synthetic camera motion (seed SEED*1000 + clip number); needs --name")
     args = ap.parse_args()
-    rng = np.random.default_rng(0)
+    if (args.ego_motion is not None or args.objects) and not args.name:
+        ap.error("--ego-motion and --objects write an extra set: give --name too")
+    rng = np.random.default_rng(0 if args.ego_motion is None else args.ego_motion)
     os.makedirs(CACHE, exist_ok=True)
     sp = splits()
     pos, pos_xyxy, neg, cls_x, cls_y = [], [], [], [], []
     side = args.crop
+    if args.objects:
+        for ci, clip in enumerate(sp[args.split]):
+            for i, img, _, others in clip_frames(clip):
+                if i % 2 == 0 and others:
+                    boxes = [jitter(rng, b) for b in others for _ in range(OBJECT_JITTERS)]
+                    cls_x.append(crop_patches(img, np.array(boxes)))
+                    cls_y += [0] * len(boxes)
+            print("objects %d/%d %s cls=%d" % (ci + 1, len(sp[args.split]), clip, len(cls_y)), flush=True)
+        save_extra_sets(args.name, np.concatenate(cls_x), cls_y)
+        return
 
     for ci, clip in enumerate(sp[args.split]):
-        lab = labels(clip)
         prev = None
-        for i, img in frames(clip):
-            drones = [b for c, b in lab.get(i, []) if c == "DRONE"]
-            others = [b for c, b in lab.get(i, []) if c != "DRONE"]
+        for i, img, drones, others in clip_frames(clip, None if args.ego_motion is None else args.ego_motion * 1000 + ci):
             if i % args.every == 0 and drones:
                 crop, b = crop_with(rng, img, drones[0], side)
                 pos.append(crop.copy())
@@ -166,10 +203,8 @@ def main():
         return
 
     for ci, clip in enumerate(sp["negatives_train"]):
-        lab = labels(clip)
         prev = None
-        for i, img in frames(clip):
-            others = [b for _, b in lab.get(i, [])]
+        for i, img, _, others in clip_frames(clip):
             if i % (args.every * 4) == 0:
                 if others and max(others[0][2] - others[0][0], others[0][3] - others[0][1]) < side - 8:
                     crop, _ = crop_with(rng, img, others[0], side)

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.detect.patches import patches_to_input  # noqa: E402
+from training.augment import photometric  # noqa: E402
 from training.net import PatchClassifier, count_params, training_device  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -27,10 +28,7 @@ def augment(rng, x):
     x = x.copy()
     flip = rng.random(len(x)) < 0.5
     x[flip] = x[flip][:, :, ::-1]
-    xf = x.astype(np.float32)
-    c = rng.uniform(0.7, 1.3, (len(x), 1, 1, 1)).astype(np.float32)
-    b = rng.uniform(-25, 25, (len(x), 1, 1, 1)).astype(np.float32)
-    return np.clip((xf - 128) * c + 128 + b, 0, 255).astype(np.uint8)
+    return np.stack([photometric(rng, np.ascontiguousarray(p)) for p in x])
 
 
 def main():
@@ -41,6 +39,9 @@ def main():
     ap.add_argument("--lr", type=float, default=2e-3)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--synth", nargs="*", default=[], help="npz files with more patches: x [K,32,32,3], y [K]")
+    ap.add_argument("--hard", nargs="*", default=[], help="npz files of hard negatives (x, y = 0), e.g. birds and "
+                    "airliners, drawn as --hard-frac of every batch besides the other clutter")
+    ap.add_argument("--hard-frac", type=float, default=0.25)
     ap.add_argument("--resume", action="store_true")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -51,10 +52,16 @@ def main():
     for path in args.synth:
         z = np.load(path)
         X, Y = np.concatenate([X, z["x"]]), np.concatenate([Y, z["y"].astype(np.int64)])
+    n_plain = len(Y)
+    for path in args.hard:
+        z = np.load(path)
+        X, Y = np.concatenate([X, z["x"]]), np.concatenate([Y, z["y"].astype(np.int64)])
     rng = np.random.default_rng(0)
     perm = rng.permutation(len(Y))
     hold, train = perm[: len(Y) // 10], perm[len(Y) // 10:]
-    pos, neg = train[Y[train] == 1], train[Y[train] == 0]
+    pos, neg = train[Y[train] == 1], train[(Y[train] == 0) & (train < n_plain)]
+    hard = train[(Y[train] == 0) & (train >= n_plain)]
+    n_hard = int(round(args.batch * args.hard_frac)) if len(hard) else 0
     device = training_device()
     net = PatchClassifier().to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
@@ -65,13 +72,15 @@ def main():
         net.load_state_dict(ck["model"])
         opt.load_state_dict(ck["opt"])
         step = ck["step"]
-    print("params=%d train=%d (pos %d) holdout=%d" % (count_params(net), len(train), len(pos), len(hold)), flush=True)
+    print("params=%d train=%d (pos %d, hard %d) holdout=%d" % (count_params(net), len(train), len(pos), len(hard), len(hold)),
+          flush=True)
     t0 = time.time()
     while step < args.steps:
         net.train()
         for g in opt.param_groups:
             g["lr"] = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
-        idx = np.concatenate([rng.choice(pos, args.batch // 2), rng.choice(neg, args.batch // 2)])
+        idx = np.concatenate([rng.choice(pos, args.batch // 2), rng.choice(neg, args.batch // 2 - n_hard),
+                              rng.choice(hard, n_hard)])
         x = torch.from_numpy(patches_to_input(augment(rng, X[idx]))).to(device)
         loss = F.cross_entropy(net(x), torch.from_numpy(Y[idx]).to(device))
         opt.zero_grad()

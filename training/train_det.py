@@ -21,6 +21,7 @@ import torch
 import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from training.augment import photometric  # noqa: E402
 from training.net import STRIDE, TinyCenterNet, count_params, training_device  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -91,12 +92,7 @@ class Sampler:
             canvas = canvas[:, ::-1]
             if box is not None:
                 box = np.array([t - box[2], box[1], t - box[0], box[3]], np.float32)
-        # photometric jitter: contrast, brightness, occasional blur
-        img = canvas.astype(np.float32)
-        img = (img - 128) * rng.uniform(0.7, 1.3) + 128 + rng.uniform(-25, 25)
-        if rng.random() < 0.2:
-            img = cv2.GaussianBlur(img, (3, 3), 0)
-        img = np.clip(img, 0, 255)[..., ::-1] / 255.0
+        img = photometric(rng, np.ascontiguousarray(canvas))[..., ::-1] / 255.0
         return img.transpose(2, 0, 1).astype(np.float32), box
 
     def batch(self, n):
