@@ -55,6 +55,7 @@ def _spot_glad(tmp_path, **overrides):
         "detector.local.appearance.model": str(tmp_path / "spot.onnx"),
         "detector.classifier.model": brightness_classifier(tmp_path / "bright.onnx"),
         "detector.global.motion.enabled": False,
+        "detector.classifier.confirm_hits": 0,
         **overrides,
     })
     return Glad(cfg.detector, build_detectors(cfg.detector))
@@ -107,6 +108,41 @@ def test_lock_is_dropped_when_the_classifier_does_not_believe_in_it(tmp_path, si
     else:
         assert len(results[2].detections) == 0 and results[2].target is None
         assert results[3].mode == "global"  # searched globally again
+
+
+@pytest.mark.parametrize("side, reported", [(4, False), (16, True)])
+def test_a_lock_is_reported_once_the_classifier_confirms_it(tmp_path, side, reported):
+    # confirmed when the first 2 hits average 0.3: the 4 px spot (drone probability 0.11) is followed
+    # but never reported; the 16 px square (0.44) from its second hit on
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.classifier.confirm_hits": 2, "detector.classifier.confirm_threshold": 0.3,
+                                   "detector.local.motion.enabled": False})
+    results = [glad.process(_spot_frame(i, side)) for i in range(4)]
+    assert [r.mode for r in results] == ["global", "local", "local", "local"]  # followed all along
+    assert len(results[0].detections) == 0 and results[0].target is None  # one hit: not judged yet
+    assert len(results[0].candidates) >= 1  # the hit is kept among the candidates
+    assert all((len(r.detections) == 1 and r.target is not None) == reported for r in results[1:])
+    glad.process(_spot_frame(4, side=0))  # nothing to see: the lock is missed, not yet given up
+    assert glad.region.active
+
+
+def test_lock_confirmation_judges_the_first_hits_once():
+    from payload.detect.classifier import LockCheck
+
+    lock = LockCheck(hits=0, threshold=0.5, confirm_hits=2, confirm_threshold=0.8)
+    assert lock.active and not lock.confirmed
+    assert lock.add(0.9) and not lock.confirmed  # one hit of two
+    lock.add(0.6)
+    assert not lock.confirmed  # mean 0.75
+    lock.add(1.0)
+    assert not lock.confirmed  # judged on the first two only: followed, never reported
+    lock.reset()
+    lock.add(0.9)
+    lock.add(0.7)
+    assert lock.confirmed  # mean 0.8
+    lock.update_config(0, 0.5, 0, 0.8)
+    lock.reset()
+    assert lock.confirmed and not lock.active  # off: every lock reported at once
 
 
 def test_lock_check_judges_the_mean_of_the_last_hits():

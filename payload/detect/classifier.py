@@ -50,28 +50,53 @@ class AppearanceClassifier:
 
 
 class LockCheck:
-    """Track confirmation: a lock stands while the classifier believes in it on average.
+    """Track confirmation by the classifier: a lock is reported once confirmed and stands while
+    the classifier believes in it on average.
 
-    The local detector follows whatever it was started on (a bird, a branch) as long as it keeps
-    scoring above T1; one frame's classifier verdict is too noisy to drop a lock on, the mean over
-    the lock's last ``hits`` hits is not. Judged once that many hits are in; ``hits`` 0 = off.
+    Confirmation: a new lock is reported only when the mean drone probability of its first
+    ``confirm_hits`` hits reaches ``confirm_threshold``. One frame's verdict on a bird is a coin
+    toss; two in a row rarely both pass a high bar. A lock that fails is still followed, without
+    being reported, until it is dropped: meanwhile the global detector cannot take the same bird
+    again. ``confirm_hits`` 0 = every lock is reported at once.
+
+    Hold: the local detector follows whatever it was started on (a bird, a branch) as long as it
+    keeps scoring above T1; the lock is dropped when the mean over its last ``hits`` hits falls
+    below ``threshold``. Judged once that many hits are in; ``hits`` 0 = off.
     """
 
-    def __init__(self, hits: int, threshold: float) -> None:
+    def __init__(self, hits: int, threshold: float, confirm_hits: int = 0, confirm_threshold: float = 0.0) -> None:
         self.hits, self.threshold = hits, threshold
+        self.confirm_hits, self.confirm_threshold = confirm_hits, confirm_threshold
         self._probs: deque = deque(maxlen=max(1, hits))
+        self._first: list = []
+        self.confirmed = not confirm_hits
 
-    def update_config(self, hits: int, threshold: float) -> None:
+    @property
+    def active(self) -> bool:
+        """Whether it needs the classifier's probabilities at all."""
+        return bool(self.hits or self.confirm_hits)
+
+    def update_config(self, hits: int, threshold: float, confirm_hits: int = 0, confirm_threshold: float = 0.0) -> None:
         if hits != self.hits:
             self._probs = deque(self._probs, maxlen=max(1, hits))
         self.hits, self.threshold = hits, threshold
+        self.confirm_hits, self.confirm_threshold = confirm_hits, confirm_threshold
+        self.confirmed = self.confirmed or not confirm_hits
 
     def reset(self) -> None:
+        """A new lock."""
         self._probs.clear()
+        self._first = []
+        self.confirmed = not self.confirm_hits
 
     def add(self, drone_probability: float) -> bool:
         """Record a hit's drone probability; False when the lock is judged false."""
+        p = float(drone_probability)
+        if len(self._first) < self.confirm_hits:
+            self._first.append(p)
+            if len(self._first) == self.confirm_hits:
+                self.confirmed = float(np.mean(self._first)) >= self.confirm_threshold
         if not self.hits:
             return True
-        self._probs.append(float(drone_probability))
+        self._probs.append(p)
         return len(self._probs) < self.hits or float(np.mean(self._probs)) >= self.threshold

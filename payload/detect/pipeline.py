@@ -14,7 +14,7 @@ target starts again there.
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Dict, Optional, Tuple
 
 import cv2
@@ -109,7 +109,7 @@ class Glad:
         self.lmd = MotionDetector(cfg.local.motion, LMD)
         self.region = SearchRegion(cfg.search_region)
         self.switcher = Switcher(cfg.switcher, local_available=self._local_available(cfg))
-        self.lock = LockCheck(self._lock_hits(cfg), cfg.classifier.lock_threshold)
+        self.lock = LockCheck(*self._lock_settings(cfg))
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
         self._ego_cfg = _ego_motion_config(cfg)
@@ -118,10 +118,13 @@ class Glad:
     def _local_available(cfg: DetectorConfig) -> bool:
         return cfg.local.appearance.enabled or cfg.local.motion.enabled
 
-    def _lock_hits(self, cfg: DetectorConfig) -> int:
-        """The lock check needs the classifier: off without it."""
-        usable = cfg.classifier.enabled and self.models.classifier is not None
-        return cfg.classifier.lock_hits if usable else 0
+    def _lock_settings(self, cfg: DetectorConfig) -> Tuple[int, float, int, float]:
+        """LockCheck's (hits, threshold, confirm_hits, confirm_threshold); it needs the classifier:
+        off without it."""
+        c = cfg.classifier
+        if not (c.enabled and self.models.classifier is not None):
+            return 0, c.lock_threshold, 0, c.confirm_threshold
+        return c.lock_hits, c.lock_threshold, c.confirm_hits, c.confirm_threshold
 
     def update_config(self, cfg: DetectorConfig) -> None:
         """Hot reload: thresholds and switches; models stay as loaded."""
@@ -132,7 +135,7 @@ class Glad:
         self.region.update_config(cfg.search_region)
         self.switcher.update_config(cfg.switcher)
         self.switcher.local_available = self._local_available(cfg)
-        self.lock.update_config(self._lock_hits(cfg), cfg.classifier.lock_threshold)
+        self.lock.update_config(*self._lock_settings(cfg))
         if self.models.global_appearance is not None:
             self.models.global_appearance.update_config(cfg.global_.appearance)
         if self.models.local_appearance is not None:
@@ -160,6 +163,9 @@ class Glad:
             result = self._global(frame, grey, timings)
         self._prev = grey
         self._prev_t_ns = frame.t_capture_ns
+        if not self.lock.confirmed and (len(result.detections) or result.target is not None):
+            # followed, not reported: the classifier has not confirmed this lock (LockCheck)
+            result = replace(result, detections=Detections.empty(), target=None)
         return result
 
     def _global(self, frame: Frame, grey: GreyLevels, timings: Dict[str, float]) -> GladResult:
@@ -301,8 +307,9 @@ class Glad:
         return kept
 
     def _lock_holds(self, image: np.ndarray, best: Detections, timings: Dict[str, float]) -> bool:
-        """Feed the chosen hit's drone probability to the lock check (cfg.classifier.lock_hits)."""
-        if not self.lock.hits:
+        """Feed the chosen hit's drone probability to the lock check (cfg.classifier.lock_hits,
+        confirm_hits)."""
+        if not self.lock.active:
             return True
         t = time.perf_counter()
         probability = float(self.models.classifier.probabilities(image, best)[0])
