@@ -164,11 +164,13 @@ class ClassifierConfig(Section):
         description="Drop a local lock when the mean drone probability of its last N hits is below lock_threshold; 0 = off.",
     )
     lock_threshold: float = Field(0.15, ge=0, le=1, description="Mean MAV probability a lock must keep (lock_hits).")
-    # 2 hits at 0.8: on negatives_train (110 clips of birds, airliners, helicopters) frames with a
-    # detection 10.7 % -> 2.8 % (birds 17.5 % -> 1.2 %) for val F 0.800 -> 0.797 (sweep in docs/results.md)
+    # 2 hits in a row at 0.8 (with loc7): negatives_train (110 clips of birds, airliners, helicopters)
+    # frames with a detection 7.7 % -> 4.4 %, val F 0.819 -> 0.817, val warped (seed 1) 0.790 -> 0.777.
+    # Judging only a lock's first hits cut negatives_train to 2.6 % but lost whole warped clips
+    # (0.723): one doubtful start silenced a drone for good (sweep in docs/results.md)
     confirm_hits: int = Field(
         2, ge=0, le=1000,
-        description="Report a new lock only once the mean MAV probability of its first N hits reaches confirm_threshold; 0 = at once.",
+        description="Report a lock from the first time N hits in a row average confirm_threshold; 0 = at once.",
     )
     confirm_threshold: float = Field(0.8, ge=0, le=1, description="Mean MAV probability that confirms a new lock (confirm_hits).")
 

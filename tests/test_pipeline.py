@@ -126,7 +126,7 @@ def test_a_lock_is_reported_once_the_classifier_confirms_it(tmp_path, side, repo
     assert glad.region.active
 
 
-def test_lock_confirmation_judges_the_first_hits_once():
+def test_lock_confirmation_waits_for_two_convincing_hits_in_a_row():
     from payload.detect.classifier import LockCheck
 
     lock = LockCheck(hits=0, threshold=0.5, confirm_hits=2, confirm_threshold=0.8)
@@ -134,12 +134,15 @@ def test_lock_confirmation_judges_the_first_hits_once():
     assert lock.add(0.9) and not lock.confirmed  # one hit of two
     lock.add(0.6)
     assert not lock.confirmed  # mean 0.75
+    lock.add(0.2)
+    assert not lock.confirmed  # 0.6, 0.2
     lock.add(1.0)
-    assert not lock.confirmed  # judged on the first two only: followed, never reported
-    lock.reset()
-    lock.add(0.9)
     lock.add(0.7)
-    assert lock.confirmed  # mean 0.8
+    assert lock.confirmed  # 1.0, 0.7: mean 0.85
+    lock.add(0.0)
+    assert lock.confirmed  # for the rest of the lock; the hold check judges it from here
+    lock.reset()
+    assert not lock.confirmed  # a new lock
     lock.update_config(0, 0.5, 0, 0.8)
     lock.reset()
     assert lock.confirmed and not lock.active  # off: every lock reported at once

@@ -53,11 +53,12 @@ class LockCheck:
     """Track confirmation by the classifier: a lock is reported once confirmed and stands while
     the classifier believes in it on average.
 
-    Confirmation: a new lock is reported only when the mean drone probability of its first
-    ``confirm_hits`` hits reaches ``confirm_threshold``. One frame's verdict on a bird is a coin
-    toss; two in a row rarely both pass a high bar. A lock that fails is still followed, without
-    being reported, until it is dropped: meanwhile the global detector cannot take the same bird
-    again. ``confirm_hits`` 0 = every lock is reported at once.
+    Confirmation: a new lock is reported from the first time ``confirm_hits`` hits in a row
+    average at least ``confirm_threshold`` drone probability; until then it is followed without
+    being reported (and the global detector cannot take the same bird again meanwhile). One
+    frame's verdict on a bird is a coin toss; two in a row rarely both pass a high bar, while a
+    drone that the classifier doubts at first (turning, half hidden) is reported once it shows
+    itself. ``confirm_hits`` 0 = every lock is reported at once.
 
     Hold: the local detector follows whatever it was started on (a bird, a branch) as long as it
     keeps scoring above T1; the lock is dropped when the mean over its last ``hits`` hits falls
@@ -68,7 +69,7 @@ class LockCheck:
         self.hits, self.threshold = hits, threshold
         self.confirm_hits, self.confirm_threshold = confirm_hits, confirm_threshold
         self._probs: deque = deque(maxlen=max(1, hits))
-        self._first: list = []
+        self._recent: deque = deque(maxlen=max(1, confirm_hits))
         self.confirmed = not confirm_hits
 
     @property
@@ -79,6 +80,8 @@ class LockCheck:
     def update_config(self, hits: int, threshold: float, confirm_hits: int = 0, confirm_threshold: float = 0.0) -> None:
         if hits != self.hits:
             self._probs = deque(self._probs, maxlen=max(1, hits))
+        if confirm_hits != self.confirm_hits:
+            self._recent = deque(self._recent, maxlen=max(1, confirm_hits))
         self.hits, self.threshold = hits, threshold
         self.confirm_hits, self.confirm_threshold = confirm_hits, confirm_threshold
         self.confirmed = self.confirmed or not confirm_hits
@@ -86,16 +89,15 @@ class LockCheck:
     def reset(self) -> None:
         """A new lock."""
         self._probs.clear()
-        self._first = []
+        self._recent.clear()
         self.confirmed = not self.confirm_hits
 
     def add(self, drone_probability: float) -> bool:
         """Record a hit's drone probability; False when the lock is judged false."""
         p = float(drone_probability)
-        if len(self._first) < self.confirm_hits:
-            self._first.append(p)
-            if len(self._first) == self.confirm_hits:
-                self.confirmed = float(np.mean(self._first)) >= self.confirm_threshold
+        if not self.confirmed:
+            self._recent.append(p)
+            self.confirmed = len(self._recent) == self.confirm_hits and float(np.mean(self._recent)) >= self.confirm_threshold
         if not self.hits:
             return True
         self._probs.append(p)
