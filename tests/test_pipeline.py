@@ -126,6 +126,16 @@ def test_a_lock_is_reported_once_the_classifier_confirms_it(tmp_path, side, repo
     assert glad.region.active
 
 
+def test_without_a_local_stage_global_hits_are_reported_at_once(tmp_path):
+    # global only (the ablation's GAD row): every hit starts a new lock, so there is nothing to confirm over
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.confirm_hits": 2,
+                                   "detector.classifier.confirm_threshold": 0.3,
+                                   "detector.local.appearance.enabled": False, "detector.local.motion.enabled": False})
+    results = [glad.process(_spot_frame(i, side=16)) for i in range(2)]
+    assert [r.mode for r in results] == ["global", "global"]
+    assert all(len(r.detections) == 1 and r.target is not None for r in results)
+
+
 def test_lock_confirmation_waits_for_two_convincing_hits_in_a_row():
     from payload.detect.classifier import LockCheck
 

@@ -119,10 +119,11 @@ class Glad:
         return cfg.local.appearance.enabled or cfg.local.motion.enabled
 
     def _lock_settings(self, cfg: DetectorConfig) -> Tuple[int, float, int, float]:
-        """LockCheck's (hits, threshold, confirm_hits, confirm_threshold); it needs the classifier:
-        off without it."""
+        """LockCheck's (hits, threshold, confirm_hits, confirm_threshold). It needs the classifier,
+        and a local stage to follow a lock with (global-only, every hit starts a new lock): off
+        without them."""
         c = cfg.classifier
-        if not (c.enabled and self.models.classifier is not None):
+        if not (c.enabled and self.models.classifier is not None and self._local_available(cfg)):
             return 0, c.lock_threshold, 0, c.confirm_threshold
         return c.lock_hits, c.lock_threshold, c.confirm_hits, c.confirm_threshold
 
