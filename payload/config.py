@@ -441,6 +441,19 @@ def _dotted(loc: Tuple) -> str:
     return out or "(top level)"
 
 
+def _merged(defaults: Any, data: Any) -> Any:
+    """``data`` laid over ``defaults``, section by section: a file that sets one key of a section
+    keeps the section's other defaults. (Validating the file alone would build a partial section
+    from its class defaults: the local stage's appearance would fall back to the global T0 and
+    input size.)"""
+    if not (isinstance(defaults, dict) and isinstance(data, dict)):
+        return data
+    out = dict(defaults)
+    for key, value in data.items():
+        out[key] = _merged(defaults.get(key), value)
+    return out
+
+
 def parse_config(data: Any, source: str = "<config>", text: Optional[str] = None) -> Config:
     """Validate already-parsed YAML data; raise ConfigError with one line per problem."""
     if data is None:
@@ -449,7 +462,7 @@ def parse_config(data: Any, source: str = "<config>", text: Optional[str] = None
         raise ConfigError(["%s: the file must hold a mapping of sections (capture, detector, ...), got %s" % (source, type(data).__name__)])
     lines = _line_map(text) if text else {}
     try:
-        return Config.model_validate(data)
+        return Config.model_validate(_merged(_DEFAULTS, data))
     except ValidationError as exc:
         problems = []
         for err in exc.errors():
@@ -458,6 +471,9 @@ def parse_config(data: Any, source: str = "<config>", text: Optional[str] = None
             where = "%s:%d" % (source, line) if line else source
             problems.append("%s: %s: %s" % (where, _dotted(loc), msg))
         raise ConfigError(problems) from None
+
+
+_DEFAULTS = Config().model_dump(by_alias=True)
 
 
 def load_config(path: Optional[str] = None) -> Config:

@@ -47,6 +47,20 @@ def test_default_yaml_holds_every_default():
     assert data == Config().model_dump(by_alias=True, mode="json")
 
 
+def test_a_file_setting_one_key_keeps_the_rest_of_its_section(tmp_path):
+    # the local and global stages share one section type with different defaults: a file naming
+    # only the local model must not put the global T0 and input size on the local detector
+    path = tmp_path / "partial.yaml"
+    path.write_text("detector:\n  local:\n    appearance:\n      model: /opt/local.onnx\n"
+                    "  global:\n    motion:\n      t2: 6\n")
+    c = load_config(str(path)).detector
+    assert c.local.appearance.model == "/opt/local.onnx"
+    assert (c.local.appearance.confidence, c.local.appearance.input_wh) == (0.1, (320, 320))
+    assert c.global_.motion.t2 == 6.0
+    assert (c.global_.motion.alpha, c.global_.motion.min_blob_area_px) == (0.0, 6)
+    assert c.local.motion == Config().detector.local.motion
+
+
 def test_paper_parameters_defaults():
     c = Config().detector
     assert c.global_.appearance.confidence == 0.5  # T0
