@@ -238,6 +238,9 @@ def check_exchange(fake, link, payload, t_from, t_synced):
 
     # target messages: boxes normalised, coasting flagged, idle when lost
     statuses = [r["fields"] for r in fake.rows("CAMERA_TRACKING_IMAGE_STATUS") if r["sysid"] == 1 and r["compid"] == 100]
+    # the payload thread records a target just after sending it: let the one in flight be recorded
+    n_recorded = len(payload.published)
+    wait_for(lambda: len(payload.published) > n_recorded, 5.0, "the payload's next frame")
     pub = {(int(t.xyxy[0]), int(t.xyxy[1])): t
            for _, t, _, s in payload.published if t is not None and s > 0}
     active = [f for f in statuses if f["tracking_status"] != 0]
