@@ -240,6 +240,13 @@ class MavlinkLink:
                 connect_failures=self._connect_failures,
             )
 
+    def publishing(self) -> Any:
+        """Hold while one frame's target messages go out (``with link.publishing(): ...``): a
+        command that disables detection is then handled, and acknowledged, before or after them,
+        never in between, so nothing about the target follows the ACK. (The receive thread handles
+        commands under the same lock.)"""
+        return self._lock
+
     def send_message(self, msg_type: str, /, **fields: Any) -> bool:
         """Send one MAVLink message by name, e.g. ``send_message("DEBUG_VECT", name=b"TGT_BRG", ...)``.
 

@@ -73,6 +73,10 @@ class TargetPublisher:
 
     def publish(self, target: Optional[Target], bearing: Optional[Bearing], image_wh: Tuple[int, int]) -> int:
         """Send this frame's messages; returns how many were sent (0 when skipped or the link is down)."""
+        with self.link.publishing():
+            return self._publish(target, bearing, image_wh)
+
+    def _publish(self, target: Optional[Target], bearing: Optional[Bearing], image_wh: Tuple[int, int]) -> int:
         self.stats.frames += 1
         if not self.link.detection_enabled:
             self.stats.disabled += 1
