@@ -134,8 +134,7 @@ def clip_frames(clip, ego_seed=None):
         if ego_seed is not None:
             if warp is None:
                 warp = EgoMotionWarp(ego_seed, (img.shape[1], img.shape[0]))
-            img = cv2.warpPerspective(img, warp.homography(i), warp.size_wh, flags=cv2.INTER_LINEAR,
-                                      borderMode=cv2.BORDER_REFLECT_101)
+            img = warp.image(i, img)
             boxes = [(c, m[0]) for c, b in boxes for m in [warp.boxes(i, b)] if len(m)]
         yield i, img, [b for c, b in boxes if c == "DRONE"], [b for c, b in boxes if c != "DRONE"]
 

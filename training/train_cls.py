@@ -31,6 +31,14 @@ def augment(rng, x):
     return np.stack([photometric(rng, np.ascontiguousarray(p)) for p in x])
 
 
+def with_sets(X, Y, paths):
+    """``X``, ``Y`` with the patches of these npz files (x, y) appended."""
+    for path in paths:
+        z = np.load(path)
+        X, Y = np.concatenate([X, z["x"]]), np.concatenate([Y, z["y"].astype(np.int64)])
+    return X, Y
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--name", required=True)
@@ -49,13 +57,9 @@ def main():
     os.makedirs(run, exist_ok=True)
     X = np.load(os.path.join(CACHE, "cls_x.npy"))
     Y = np.load(os.path.join(CACHE, "cls_y.npy")).astype(np.int64)
-    for path in args.synth:
-        z = np.load(path)
-        X, Y = np.concatenate([X, z["x"]]), np.concatenate([Y, z["y"].astype(np.int64)])
+    X, Y = with_sets(X, Y, args.synth)
     n_plain = len(Y)
-    for path in args.hard:
-        z = np.load(path)
-        X, Y = np.concatenate([X, z["x"]]), np.concatenate([Y, z["y"].astype(np.int64)])
+    X, Y = with_sets(X, Y, args.hard)
     rng = np.random.default_rng(0)
     perm = rng.permutation(len(Y))
     hold, train = perm[: len(Y) // 10], perm[len(Y) // 10:]

@@ -69,12 +69,14 @@ class EgoMotionWarp:
         w, h = self.size_wh
         return intrinsics(self._focal_px * zoom, w / 2.0, h / 2.0) @ rotation.T @ self._k_inv
 
+    def image(self, index: int, image: np.ndarray) -> np.ndarray:
+        """Recorded image ``index`` as the moving camera would have seen it."""
+        return cv2.warpPerspective(image, self.homography(index), self.size_wh, flags=cv2.INTER_LINEAR,
+                                   borderMode=cv2.BORDER_REFLECT_101)
+
     def frame(self, frame: Frame) -> Frame:
         """The recorded frame as the moving camera would have seen it."""
-        h = self.homography(frame.index)
-        image = cv2.warpPerspective(frame.image, h, self.size_wh, flags=cv2.INTER_LINEAR,
-                                    borderMode=cv2.BORDER_REFLECT_101)
-        return dataclasses.replace(frame, image=image)
+        return dataclasses.replace(frame, image=self.image(frame.index, frame.image))
 
     def boxes(self, index: int, xyxy: np.ndarray) -> np.ndarray:
         """Labelled ``xyxy`` boxes of frame ``index`` moved into the warped frame: the box around
