@@ -164,10 +164,10 @@ class ClassifierConfig(Section):
         description="Drop a local lock when the mean drone probability of its last N hits is below lock_threshold; 0 = off.",
     )
     lock_threshold: float = Field(0.15, ge=0, le=1, description="Mean MAV probability a lock must keep (lock_hits).")
-    # 2 hits in a row at 0.8 (with loc7): negatives_train (110 clips of birds, airliners, helicopters)
-    # frames with a detection 7.7 % -> 4.4 %, val F 0.819 -> 0.817, val warped (seed 1) 0.790 -> 0.777.
-    # Judging only a lock's first hits cut negatives_train to 2.6 % but lost whole warped clips
-    # (0.723): one doubtful start silenced a drone for good (sweep in docs/results.md)
+    # 2 hits in a row at 0.8 (replayed loc8 traces): negatives_train (110 clips of birds, airliners,
+    # helicopters) frames with a detection 10.9 % -> 5.7 %, val F 0.842 -> 0.830, val warped (seed 1)
+    # 0.813 -> 0.783. Judging only a lock's first 2 hits cut negatives_train to 3.2 % but lost
+    # V_DRONE_069 for good (val 0.775): one doubtful start silenced a drone (sweep in docs/results.md)
     confirm_hits: int = Field(
         2, ge=0, le=1000,
         description="Report a lock from the first time N hits in a row average confirm_threshold; 0 = at once.",
