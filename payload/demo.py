@@ -123,6 +123,8 @@ def main_demo(args) -> int:
     os.makedirs(out_dir, exist_ok=True)
     port = free_udp_port()
     record = os.path.join(out_dir, "autopilot.jsonl")
+    if os.path.exists(record):
+        os.remove(record)  # the fake autopilot appends; the summary counts this run only
     cfg = demo_config(load_config(args.config), out_dir, args.frames, port)
     autopilot = start_fake_autopilot(port, record)
     ref: Dict[str, Service] = {}
