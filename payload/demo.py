@@ -46,6 +46,22 @@ def start_fake_autopilot(port: int, record: str, extra=()) -> subprocess.Popen:
     )
 
 
+def wait_listening(autopilot: subprocess.Popen, record: str, timeout_s: float = 15.0) -> None:
+    """Until the fake autopilot listens: it writes its record's first line once its port is bound.
+    Else the first frames' messages would go nowhere (a busy machine takes a second or more to
+    start it)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if autopilot.poll() is not None:
+            err = autopilot.stderr.read().decode("utf-8", "replace").strip().splitlines() if autopilot.stderr else []
+            raise SourceError("demo: the fake autopilot exited (status %s): %s"
+                              % (autopilot.returncode, err[-1] if err else "no message"))
+        if os.path.exists(record) and os.path.getsize(record) > 0:
+            return
+        time.sleep(0.05)
+    log.warning("demo: fake autopilot not listening after %.0f s; starting anyway", timeout_s)
+
+
 def read_record(path: str) -> Counter:
     """Message type -> count of what the fake autopilot received from us."""
     counts: Counter = Counter()
@@ -127,6 +143,7 @@ def main_demo(args) -> int:
         os.remove(record)  # the fake autopilot appends; the summary counts this run only
     cfg = demo_config(load_config(args.config), out_dir, args.frames, port)
     autopilot = start_fake_autopilot(port, record)
+    wait_listening(autopilot, record)
     ref: Dict[str, Service] = {}
     view = _DemoView(ref, out_dir, cfg.capture.synthetic.fps)
     service = Service(cfg, max_frames=args.frames, on_result=view)

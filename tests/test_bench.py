@@ -77,6 +77,7 @@ def test_ablation_rows_switch_the_named_modules(row):
     assert cfg.local.appearance.enabled == (LAD in named)
     assert cfg.local.motion.enabled == (LMD in named)
     assert cfg.search_region.adaptive == row.name.startswith("GLAD")
+    assert (cfg.global_.scan.tiles_per_frame == 0) == row.name.endswith("without the native scan")
 
 
 def test_unknown_row_name_is_one_line_error():

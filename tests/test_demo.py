@@ -26,9 +26,9 @@ def test_demo_twice_in_one_folder_counts_each_run_alone(tmp_path):
     first = run_demo(tmp_path, frames)
     second = run_demo(tmp_path, frames)
     for counts in (first, second):
-        # one tracking status per processed frame, this run's only (the first ones may go out
-        # before the fake autopilot listens)
-        assert frames // 2 <= counts.get("CAMERA_TRACKING_IMAGE_STATUS", 0) <= frames
+        # one tracking status per processed frame, this run's only; the demo waits for the fake
+        # autopilot to listen, so at most the very first may be lost
+        assert frames - 2 <= counts.get("CAMERA_TRACKING_IMAGE_STATUS", 0) <= frames
         assert counts.get("HEARTBEAT", 0) >= 1
     for name in ("demo.mp4", "detections.csv", "decisions.csv", "autopilot.jsonl"):
         assert os.path.getsize(str(tmp_path / name)) > 0, name

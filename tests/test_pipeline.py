@@ -222,3 +222,68 @@ def test_no_retarget_without_the_jump_gate(tmp_path):
     glad.process(_spots_frame(0, [(320, 200, 255)]))
     result = glad.process(_spots_frame(1, [(320, 200, 128), (420, 200, 255)]))
     assert result.detections.centers[0].tolist() == [422, 202]
+
+
+# --- the global stage's native-resolution scan (detector.global.scan) --------------------------
+
+def test_scan_tiles_cover_the_frame_in_turn():
+    from payload.detect.scan import NativeScan
+    from payload.detect.tiled import tiles_xyxy
+
+    every = tiles_xyxy((1920, 1080), (320, 320))
+    scan = NativeScan(3)
+    seen = [tuple(t) for _ in range(-(-len(every) // 3)) for t in scan.next_tiles((1920, 1080), (320, 320))]
+    assert set(seen) == {tuple(t) for t in every}
+    assert [tuple(t) for t in scan.next_tiles((1920, 1080), (320, 320))][0] in seen  # round again
+    assert len(NativeScan(0).next_tiles((1920, 1080), (320, 320))) == 0
+    assert len(NativeScan(2).next_tiles((200, 100), (320, 320))) == 1  # a frame smaller than a tile: one tile
+
+
+def _tiny_spot_frame(index, size_wh=(1280, 768), xy=(1000, 600), side=4):
+    from payload.types import Frame
+
+    image = np.zeros((size_wh[1], size_wh[0], 3), np.uint8)
+    image[xy[1]:xy[1] + side, xy[0]:xy[0] + side] = 255  # 4 px: a 2 px grey cell (score 0.25 < T0) once GAD halves the frame
+    return Frame(image, index, index * 33_000_000, 0)
+
+
+@pytest.mark.parametrize("tiles_per_frame, found", [(2, True), (0, False)])
+def test_scan_finds_a_drone_the_down_scaled_global_detector_cannot_see(tmp_path, tiles_per_frame, found):
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.tiles_per_frame": tiles_per_frame})
+    results = []
+    for i in range(8):  # 1280x768 in 320 px tiles: 15 tiles, all seen in 8 frames at 2 a frame
+        results.append(glad.process(_tiny_spot_frame(i)))
+        if len(results[-1].detections):
+            break
+    hit = results[-1].detections
+    assert bool(len(hit)) == found
+    assert all(len(r.candidates) == 0 for r in results[:-1])  # GAD alone never saw it
+    if found:
+        assert list(hit.module) == ["GAD"] and results[-1].mode == "global"
+        assert hit.xyxy[0].tolist() == [1000, 600, 1004, 604]
+        assert "scan" in results[-1].timings_ms
+        assert glad.process(_tiny_spot_frame(len(results))).mode == "local"  # followed at native resolution
+
+
+@pytest.mark.parametrize("max_input_scale, scanned", [(0.5, False), (1.0, True)])
+def test_no_scan_where_the_global_input_keeps_most_of_the_resolution(tmp_path, max_input_scale, scanned):
+    # 640x512 into 640x384 is a 0.75 scale (the Halmstad clips: scanning them cost val F); there this
+    # 4 px spot falls across GAD's cells (< T0), while a native-resolution tile sees it whole
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.max_input_scale": max_input_scale})
+    results = [glad.process(_tiny_spot_frame(i, size_wh=(640, 512), xy=(500, 400))) for i in range(4)]
+    assert any(len(r.detections) for r in results) == scanned
+    assert any("scan" in r.timings_ms for r in results) == scanned
+
+
+@pytest.mark.parametrize("confirm_threshold, found", [(0.8, False), (0.1, True)])
+def test_a_scan_hit_must_convince_the_classifier_as_a_lock_must(tmp_path, confirm_threshold, found):
+    # the 4 px spot's 12 px patch is 11 % white: drone probability 0.11, enough for a GAD hit at the
+    # classifier's threshold 0.05 but not for a scan hit below confirm_threshold
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": ["GAD"], "detector.classifier.lock_hits": 0,
+                                   "detector.classifier.threshold": 0.05,
+                                   "detector.classifier.confirm_threshold": confirm_threshold})
+    results = [glad.process(_tiny_spot_frame(i)) for i in range(8)]
+    assert any(len(r.detections) for r in results) == found
+    assert any(len(r.candidates) for r in results)  # the scan saw it either way

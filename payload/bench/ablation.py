@@ -1,8 +1,8 @@
 """The paper's ablation (Table V) and the baselines: P/R/F/AP and FPS per configuration.
 
 Each row is the user's config with a few dotted overrides (``payload.config.config_with``):
-the four modules switched on or off, and the adaptive search region off except in the last
-GLAD row (``search_region.adaptive=false`` is a fixed square at the last box, as in the
+the four modules switched on or off, and the adaptive search region off except in the two
+GLAD rows (``search_region.adaptive=false`` is a fixed square at the last box, as in the
 authors' code). The baselines run the same clips through another runner (see runners).
 Every clip starts from a fresh state (``reset()``); models are loaded once per row.
 """
@@ -53,6 +53,9 @@ ABLATION_ROWS = (
     Row("GMD+LMD", "glad", _modules(False, True, False, True)),
     Row("GAD+GMD+LAD", "glad", _modules(True, True, True, False)),
     Row("GAD+GMD+LAD+LMD", "glad", _modules(True, True, True, True)),
+    # not in the paper: GAD without its native-resolution tiles (payload.detect.scan)
+    Row("GLAD without the native scan", "glad",
+        {**_modules(True, True, True, True, adaptive=True), "detector.global.scan.tiles_per_frame": 0}),
     Row("GLAD (adaptive region)", "glad", _modules(True, True, True, True, adaptive=True)),
 )
 

@@ -32,7 +32,7 @@ from payload.geometry import CameraModel, bearing_for, mount_from_config
 log = logging.getLogger(__name__)
 
 #: Report order of the modules (others, e.g. a baseline's, follow in the order met).
-MODULE_ORDER = ("decode", "grey", "GAD", "GMD", "classifier", "region", "LAD", "LMD", "switcher", "tiled",
+MODULE_ORDER = ("decode", "grey", "GAD", "scan", "GMD", "classifier", "region", "LAD", "LMD", "switcher", "tiled",
                 "bearing", "mavlink")
 _LINK_WAIT_S = 5.0
 _DRAIN_S = 0.3

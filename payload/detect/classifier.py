@@ -8,6 +8,7 @@ Network contract (training/net.py): input 'patches' [N, 3, 32, 32] RGB in [0, 1]
 
 import logging
 from collections import deque
+from typing import Optional
 
 import numpy as np
 
@@ -40,10 +41,12 @@ class AppearanceClassifier:
         x = patches_to_input(crop_patches(image_bgr, dets.xyxy))
         return self.model.run({self._input_name: x})[0][:, 1].astype(np.float32)
 
-    def filter(self, image_bgr: np.ndarray, dets: Detections, rescore: bool = True) -> Detections:
-        """The detections whose drone probability reaches cfg.threshold; ``rescore``: scored by that probability."""
+    def filter(self, image_bgr: np.ndarray, dets: Detections, rescore: bool = True,
+               threshold: Optional[float] = None) -> Detections:
+        """The detections whose drone probability reaches ``threshold`` (default cfg.threshold);
+        ``rescore``: scored by that probability."""
         prob = self.probabilities(image_bgr, dets)
-        keep = prob >= self.cfg.threshold
+        keep = prob >= (self.cfg.threshold if threshold is None else threshold)
         log.debug("classifier candidates=%d kept=%d", len(dets), int(keep.sum()))
         kept = dets[keep]
         return Detections(kept.xyxy, prob[keep], kept.module) if rescore else kept

@@ -2,7 +2,9 @@
 
 Per frame one detector runs, chosen by the switcher:
 - global: appearance (GAD) on the down-scaled full frame; only if it finds nothing, motion
-  (GMD) on the full frame, its candidates checked by the 32x32 classifier;
+  (GMD) on the full frame, its candidates checked by the 32x32 classifier; if that finds
+  nothing either on a frame GAD down-scales strongly (1080p), GAD's look at native
+  resolution: the local detector on a few tiles of the frame in turn (payload.detect.scan);
 - local: appearance (LAD) inside the search region at native resolution; only if it finds
   nothing, motion (LMD) inside the region, checked by the classifier.
 A hit moves/keeps the switcher on local and updates the search region; a local miss grows
@@ -24,6 +26,7 @@ from payload.config import DetectorConfig
 from payload.detect.classifier import LockCheck
 from payload.detect.motion import HomographyEstimate, MotionDetector, estimate_homography
 from payload.detect.region import SearchRegion
+from payload.detect.scan import NativeScan
 from payload.detect.switcher import GLOBAL, LOCAL, Switcher
 from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
 
@@ -110,6 +113,7 @@ class Glad:
         self.region = SearchRegion(cfg.search_region)
         self.switcher = Switcher(cfg.switcher, local_available=self._local_available(cfg))
         self.lock = LockCheck(*self._lock_settings(cfg))
+        self.scan = NativeScan(cfg.global_.scan.tiles_per_frame)
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
         self._ego_cfg = _ego_motion_config(cfg)
@@ -137,6 +141,7 @@ class Glad:
         self.switcher.update_config(cfg.switcher)
         self.switcher.local_available = self._local_available(cfg)
         self.lock.update_config(*self._lock_settings(cfg))
+        self.scan.tiles_per_frame = cfg.global_.scan.tiles_per_frame
         if self.models.global_appearance is not None:
             self.models.global_appearance.update_config(cfg.global_.appearance)
         if self.models.local_appearance is not None:
@@ -148,6 +153,7 @@ class Glad:
         self.switcher.reset()
         self.region.reset()
         self.lock.reset()
+        self.scan.reset()
         self._prev = self._prev_t_ns = None
 
     # --- the per-frame step -------------------------------------------------------------
@@ -190,6 +196,16 @@ class Glad:
             timings[GMD] = _ms(t)
             found = self._classify(frame.image, motion.detections, timings)
             candidates.append(motion.detections)
+        if not len(found) and gad is not None and self.cfg.global_.appearance.enabled:
+            scanned = self._scan(frame, timings)
+            candidates.append(scanned)
+            # Four native-resolution tiles a frame meet many more birds than GAD's down-scaled
+            # look: where GAD hits are checked, a scan hit must convince the classifier as much
+            # as a lock must to be reported (a synthetic gull at 0.51 took the demo's lock).
+            found = scanned
+            if GAD in self.cfg.classifier.modules:
+                found = self._confirm(frame.image, scanned, rescore=False, timings=timings, threshold=max(
+                    self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold))
         best = found.sorted_by_score()[:1] if len(found) else found
         t = time.perf_counter()
         target = None
@@ -270,6 +286,23 @@ class Glad:
             return np.eye(3)
         return _to_full_frame(estimate, grey.scale_xy(grey.ego)).matrix
 
+    def _scan(self, frame: Frame, timings: Dict[str, float]) -> Detections:
+        """Native-resolution hits on this frame's scan tiles (payload.detect.scan), as GAD hits.
+        Off without a local appearance detector, and on frames GAD's input hardly down-scales."""
+        lad, gad, scan = self.models.local_appearance, self.models.global_appearance, self.cfg.global_.scan
+        if lad is None or not self.cfg.local.appearance.enabled or not scan.tiles_per_frame:
+            return Detections.empty()
+        w, h = frame.size_wh
+        if min(gad.input_wh[0] / float(w), gad.input_wh[1] / float(h)) > scan.max_input_scale:
+            return Detections.empty()
+        t = time.perf_counter()
+        parts = [lad.detect(frame.image[y1:y2, x1:x2], offset_xy=(float(x1), float(y1)))
+                 for x1, y1, x2, y2 in self.scan.next_tiles((w, h), lad.input_wh)]
+        found = Detections.concat(parts)
+        found = found[found.score >= self.cfg.global_.appearance.confidence]  # T0: these are GAD hits
+        timings["scan"] = _ms(t)
+        return Detections(found.xyxy, found.score, np.full(len(found), GAD, "<U3"))
+
     def _acquire(self, frame: Frame, best: Detections, timings: Dict[str, float]) -> Target:
         """A new target: the search region starts around it and its lock is judged afresh."""
         self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
@@ -297,13 +330,15 @@ class Glad:
             return dets
         return self._confirm(image, dets, rescore=dets.module[0] in (GMD, LMD), timings=timings)
 
-    def _confirm(self, image: np.ndarray, dets: Detections, rescore: bool, timings: Dict[str, float]) -> Detections:
-        """The hits the classifier confirms; all of them when it is off or absent."""
+    def _confirm(self, image: np.ndarray, dets: Detections, rescore: bool, timings: Dict[str, float],
+                 threshold: Optional[float] = None) -> Detections:
+        """The hits the classifier confirms (at ``threshold``, default its own); all of them when it
+        is off or absent."""
         classifier = self.models.classifier
         if not len(dets) or classifier is None or not self.cfg.classifier.enabled:
             return dets
         t = time.perf_counter()
-        kept = classifier.filter(image, dets, rescore=rescore)
+        kept = classifier.filter(image, dets, rescore=rescore, threshold=threshold)
         timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
         return kept
 
