@@ -231,12 +231,12 @@ def test_scan_tiles_cover_the_frame_in_turn():
     from payload.detect.tiled import tiles_xyxy
 
     every = tiles_xyxy((1920, 1080), (320, 320))
-    scan = NativeScan(3)
-    seen = [tuple(t) for _ in range(-(-len(every) // 3)) for t in scan.next_tiles((1920, 1080), (320, 320))]
+    scan = NativeScan()
+    seen = [tuple(t) for _ in range(-(-len(every) // 3)) for t in scan.next_tiles((1920, 1080), (320, 320), 3)]
     assert set(seen) == {tuple(t) for t in every}
-    assert [tuple(t) for t in scan.next_tiles((1920, 1080), (320, 320))][0] in seen  # round again
-    assert len(NativeScan(0).next_tiles((1920, 1080), (320, 320))) == 0
-    assert len(NativeScan(2).next_tiles((200, 100), (320, 320))) == 1  # a frame smaller than a tile: one tile
+    assert [tuple(t) for t in scan.next_tiles((1920, 1080), (320, 320), 3)][0] in seen  # round again
+    assert len(NativeScan().next_tiles((1920, 1080), (320, 320), 0)) == 0
+    assert len(NativeScan().next_tiles((200, 100), (320, 320), 2)) == 1  # a frame smaller than a tile: one tile
 
 
 def _tiny_spot_frame(index, size_wh=(1280, 768), xy=(1000, 600), side=4):

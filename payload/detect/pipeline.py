@@ -113,7 +113,7 @@ class Glad:
         self.region = SearchRegion(cfg.search_region)
         self.switcher = Switcher(cfg.switcher, local_available=self._local_available(cfg))
         self.lock = LockCheck(*self._lock_settings(cfg))
-        self.scan = NativeScan(cfg.global_.scan.tiles_per_frame)
+        self.scan = NativeScan()
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
         self._ego_cfg = _ego_motion_config(cfg)
@@ -141,7 +141,6 @@ class Glad:
         self.switcher.update_config(cfg.switcher)
         self.switcher.local_available = self._local_available(cfg)
         self.lock.update_config(*self._lock_settings(cfg))
-        self.scan.tiles_per_frame = cfg.global_.scan.tiles_per_frame
         if self.models.global_appearance is not None:
             self.models.global_appearance.update_config(cfg.global_.appearance)
         if self.models.local_appearance is not None:
@@ -202,10 +201,8 @@ class Glad:
             # Four native-resolution tiles a frame meet many more birds than GAD's down-scaled
             # look: where GAD hits are checked, a scan hit must convince the classifier as much
             # as a lock must to be reported (a synthetic gull at 0.51 took the demo's lock).
-            found = scanned
-            if GAD in self.cfg.classifier.modules:
-                found = self._confirm(frame.image, scanned, rescore=False, timings=timings, threshold=max(
-                    self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold))
+            found = self._classify(frame.image, scanned, timings, threshold=max(
+                self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold))
         best = found.sorted_by_score()[:1] if len(found) else found
         t = time.perf_counter()
         target = None
@@ -297,7 +294,7 @@ class Glad:
             return Detections.empty()
         t = time.perf_counter()
         parts = [lad.detect(frame.image[y1:y2, x1:x2], offset_xy=(float(x1), float(y1)))
-                 for x1, y1, x2, y2 in self.scan.next_tiles((w, h), lad.input_wh)]
+                 for x1, y1, x2, y2 in self.scan.next_tiles((w, h), lad.input_wh, scan.tiles_per_frame)]
         found = Detections.concat(parts)
         found = found[found.score >= self.cfg.global_.appearance.confidence]  # T0: these are GAD hits
         timings["scan"] = _ms(t)
@@ -320,15 +317,17 @@ class Glad:
             return far
         return self._confirm(image, far.sorted_by_score()[:1], rescore=False, timings=timings)
 
-    def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float]) -> Detections:
-        """The hits the classifier confirms, for the modules it checks (cfg.classifier.modules).
+    def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float],
+                  threshold: Optional[float] = None) -> Detections:
+        """The hits the classifier confirms (at ``threshold``, default its own), for the modules it
+        checks (cfg.classifier.modules).
 
         Motion hits take the classifier's probability as their score (the motion detector has no
         score of its own); appearance hits keep the detector's confidence.
         """
         if not len(dets) or dets.module[0] not in self.cfg.classifier.modules:
             return dets
-        return self._confirm(image, dets, rescore=dets.module[0] in (GMD, LMD), timings=timings)
+        return self._confirm(image, dets, rescore=dets.module[0] in (GMD, LMD), timings=timings, threshold=threshold)
 
     def _confirm(self, image: np.ndarray, dets: Detections, rescore: bool, timings: Dict[str, float],
                  threshold: Optional[float] = None) -> Detections:

@@ -18,20 +18,19 @@ from payload.detect.tiled import tiles_xyxy
 
 
 class NativeScan:
-    """Which tiles of the frame to search this frame: the next ``tiles_per_frame``, row by row, round and round."""
+    """Which tiles of the frame to search this frame: the next few, row by row, round and round."""
 
-    def __init__(self, tiles_per_frame: int) -> None:
-        self.tiles_per_frame = int(tiles_per_frame)
+    def __init__(self) -> None:
         self._next = 0
         self._tiles: Dict[Tuple[Tuple[int, int], Tuple[int, int]], np.ndarray] = {}
 
-    def next_tiles(self, size_wh: Tuple[int, int], tile_wh: Tuple[int, int]) -> np.ndarray:
-        """(k, 4) int ``xyxy`` tiles to search now; none when the scan is off."""
+    def next_tiles(self, size_wh: Tuple[int, int], tile_wh: Tuple[int, int], tiles_per_frame: int) -> np.ndarray:
+        """(k, 4) int ``xyxy``: the next ``tiles_per_frame`` tiles to search; none when that is 0."""
         key = ((int(size_wh[0]), int(size_wh[1])), (int(tile_wh[0]), int(tile_wh[1])))
         tiles = self._tiles.get(key)
         if tiles is None:
             tiles = self._tiles[key] = tiles_xyxy(*key)
-        k = min(self.tiles_per_frame, len(tiles))
+        k = min(int(tiles_per_frame), len(tiles))
         if k <= 0:
             return tiles[:0]
         index = (self._next + np.arange(k)) % len(tiles)
