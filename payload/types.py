@@ -115,6 +115,10 @@ class Detections:
         centers = self.centers
         return Detections(np.concatenate([centers - half, centers + half], axis=1), self.score, self.module)
 
+    def rescored(self, score: float) -> "Detections":
+        """The same boxes, every one with ``score``."""
+        return Detections(self.xyxy, np.full(len(self), score, np.float32), self.module)
+
     def sorted_by_score(self) -> "Detections":
         return self[np.argsort(-self.score, kind="stable")]
 

@@ -187,6 +187,22 @@ def test_local_box_reports_the_tracked_size(tmp_path, smoothing, expected_wh):
     assert glad.region.size_wh == pytest.approx(expected_wh)
 
 
+@pytest.mark.parametrize("smoothing", [1.0, 0.5])
+def test_local_box_reports_the_locks_score(tmp_path, smoothing):
+    # reported local boxes carry the lock's confidence: the newest score blended into the tracked one
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.local.motion.enabled": False,
+                                   "detector.search_region.score_smoothing": smoothing})
+    assert glad.process(_spot_frame(0)).mode == "global"
+    glad.region.score = 0.2
+    result = glad.process(_spot_frame(1))
+    raw = float(result.candidates.score[0])
+    assert result.mode == "local" and raw > 0.5
+    expected = smoothing * raw + (1 - smoothing) * 0.2
+    assert float(result.detections.score[0]) == pytest.approx(expected)
+    assert result.target.score == pytest.approx(expected) and glad.region.score == pytest.approx(expected)
+
+
 def _spots_frame(index, spots):
     """A black frame with 4x4 spots: (x, y, grey level) each, on 4-aligned cells."""
     from payload.types import Frame

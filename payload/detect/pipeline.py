@@ -256,8 +256,8 @@ class Glad:
             return GladResult(frame.index, frame.t_capture_ns, LOCAL, Detections.empty(), Detections.concat(candidates),
                               None, region, timings)
         if len(best):
-            self.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
-            best = best.resized(self.region.size_wh)
+            self.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
+            best = best.resized(self.region.size_wh).rescored(self.region.score)
             target = self._target(frame, best, region=region)
         else:
             self.region.miss()
@@ -302,7 +302,7 @@ class Glad:
 
     def _acquire(self, frame: Frame, best: Detections, timings: Dict[str, float]) -> Target:
         """A new target: the search region starts around it and its lock is judged afresh."""
-        self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]))
+        self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
         self.lock.reset()
         self._lock_holds(frame.image, best, timings)
         return self._target(frame, best, region=None)

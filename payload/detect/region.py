@@ -35,6 +35,7 @@ class SearchRegion:
         self.cfg = cfg
         self.center: Optional[Tuple[float, float]] = None  # last known/predicted target centre
         self.size_wh: Tuple[float, float] = (0.0, 0.0)  # last measured box size
+        self.score = 0.0  # the lock's confidence: local scores blended over its hits
         self.misses = 0  # T_lost: consecutive frames without a detection
         self._kf = self._new_filter()
         self._carried: Optional[Tuple[float, float]] = None
@@ -77,11 +78,12 @@ class SearchRegion:
         self._kf = self._new_filter()
         self._carried = None
 
-    def start(self, center_xy: Tuple[float, float], size_wh: Tuple[float, float]) -> None:
+    def start(self, center_xy: Tuple[float, float], size_wh: Tuple[float, float], score: float) -> None:
         """A fresh target (found by the global detector): no velocity known yet."""
         self.reset()
         self.center = (float(center_xy[0]), float(center_xy[1]))
         self.size_wh = (float(size_wh[0]), float(size_wh[1]))
+        self.score = float(score)
 
     def predict(self, homography: np.ndarray, dt_s: float) -> Tuple[float, float]:
         """Carry the centre into the new frame: camera motion, then the target's own motion."""
@@ -102,9 +104,9 @@ class SearchRegion:
         self.center = (carried[0] + vx * dt_s, carried[1] + vy * dt_s)
         return self.center
 
-    def hit(self, center_xy: Tuple[float, float], size_wh: Tuple[float, float]) -> None:
+    def hit(self, center_xy: Tuple[float, float], size_wh: Tuple[float, float], score: float) -> None:
         """A detection in the region: measure the target's own velocity, recentre, and blend
-        its size into the tracked size (``size_smoothing``)."""
+        its size and score into the tracked ones (``size_smoothing``, ``score_smoothing``)."""
         if self.cfg.adaptive and self._carried is not None:
             z = np.array([[center_xy[0] - self._carried[0]], [center_xy[1] - self._carried[1]]]) / self._dt_s
             self._kf.update(z)
@@ -113,6 +115,8 @@ class SearchRegion:
         a = self.cfg.size_smoothing
         self.size_wh = (a * float(size_wh[0]) + (1 - a) * self.size_wh[0],
                         a * float(size_wh[1]) + (1 - a) * self.size_wh[1])
+        b = self.cfg.score_smoothing
+        self.score = b * float(score) + (1 - b) * self.score
         self.misses = 0
 
     def miss(self) -> None:
