@@ -5,7 +5,6 @@ import json
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -13,17 +12,12 @@ import time
 import pytest
 import yaml
 
+from payload.demo import FAKE_AUTOPILOT, free_udp_port
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-FAKE_AUTOPILOT = os.path.join(REPO, "sitl", "fake_autopilot.py")
 TARGET_TYPES = ("CAMERA_TRACKING_IMAGE_STATUS", "DEBUG_VECT")
 
 pytestmark = pytest.mark.slow
-
-
-def free_udp_port():
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def write_config(tmp_path, port, out_dir, frames=0, pace=False, timeout_s=3.0):
@@ -41,6 +35,7 @@ def write_config(tmp_path, port, out_dir, frames=0, pace=False, timeout_s=3.0):
 
 
 def start_autopilot(port, record, *extra):
+    # payload.demo.start_fake_autopilot's, with a stdin to switch the link off and on (--stdin-control)
     return subprocess.Popen(
         [sys.executable, FAKE_AUTOPILOT, "--listen", "udpin:127.0.0.1:%d" % port, "--record", str(record), *extra],
         stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
