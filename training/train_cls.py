@@ -50,6 +50,7 @@ def main():
     ap.add_argument("--hard", nargs="*", default=[], help="npz files of hard negatives (x, y = 0), e.g. birds and "
                     "airliners, drawn as --hard-frac of every batch besides the other clutter")
     ap.add_argument("--hard-frac", type=float, default=0.25)
+    ap.add_argument("--init", default=None, help="start from this run's checkpoint (fine-tuning), e.g. training/runs/cls5/last.pt")
     ap.add_argument("--resume", action="store_true")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -70,6 +71,8 @@ def main():
     net = PatchClassifier().to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     step = 0
+    if args.init:
+        net.load_state_dict(torch.load(args.init, weights_only=False, map_location=device)["model"])
     last = os.path.join(run, "last.pt")
     if args.resume and os.path.exists(last):
         ck = torch.load(last, weights_only=False, map_location=device)
