@@ -10,7 +10,7 @@ from training import mine_locks
 
 
 def test_collects_the_locked_drone_as_drone_patches():
-    scene = Scene(seed=7, width=1920, height=1080, frames=40, target_px=(10.0, 20.0))
+    scene = Scene(seed=11, width=1920, height=1080, frames=60, target_px=(6.0, 20.0))
     truth = {}
 
     def images():
@@ -21,12 +21,12 @@ def test_collects_the_locked_drone_as_drone_patches():
     collector = mine_locks.Collector(every=2)
     glad = Glad(Config().detector)
     mine_locks.run_clip(glad, collector, "synthetic", images(), truth.get)
-    assert collector.x, "GLAD locked on nothing in 40 frames of seed 7"
+    assert collector.x, "GLAD locked on nothing in 60 frames of seed 11"
     assert all(p.shape == (PATCH_PX, PATCH_PX, 3) and p.dtype == np.uint8 for p in collector.x)
-    # seed 7's drone is locked from the first frames (tests/test_glad_synthetic.py): drone patches,
-    # one every second frame at most
-    assert collector.counts.get(("synthetic", 1), 0) >= 10
-    assert sum(collector.counts.values()) <= 20
+    # seed 11's drone (a clip of tests/test_glad_synthetic.py) is locked within a few frames:
+    # drone patches, one every second frame at most
+    assert collector.counts.get(("synthetic", 1), 0) >= 20
+    assert sum(collector.counts.values()) <= 30
 
 
 def test_every_box_on_a_clip_without_drones_is_clutter():
