@@ -12,7 +12,7 @@ from payload.capture.base import EndOfStream
 from payload.capture.synthetic import SyntheticSource
 from payload.config import SyntheticSceneConfig
 from payload.errors import ConfigError, SourceError
-from payload.synth.export import export_clip
+from payload.synth.export import export_clip, write_labels
 from payload.synth.scene import MAX_BLUR_PX, Scene, SceneFrame
 from payload.types import Frame
 
@@ -140,6 +140,33 @@ def test_export_writes_mp4_csv_and_homographies(tmp_path):
     homographies = np.load(os.path.join(str(tmp_path), "SYN_T_homography.npy"))
     assert homographies.shape == (20, 3, 3)
     assert np.allclose(homographies[7], truth[7].homography)
+
+
+@pytest.mark.parametrize("kw", [dict(seed=8, target_px=(4.0, 20.0)), dict(seed=12, clutter=8),
+                                dict(seed=5, render_target=False), dict(seed=3, width=1920, height=1080)])
+def test_truth_without_drawing_is_the_drawn_truth(kw):
+    kw.setdefault("width", W)
+    kw.setdefault("height", H)
+    drawn = list(Scene(frames=40, **kw))
+    truth = list(Scene(frames=40, **kw).truth())
+    assert [f.index for f in truth] == list(range(40))
+    assert sum(f.target_xyxy is not None for f in drawn) >= 10
+    for d, t in zip(drawn, truth):
+        assert t.image is None and t.homography is None
+        assert (d.target_xyxy is None) == (t.target_xyxy is None), d.index
+        if d.target_xyxy is not None:
+            assert np.array_equal(d.target_xyxy, t.target_xyxy), d.index
+        assert (d.target_span_px, d.target_visible, d.camera_rpy_rad) == (t.target_span_px, t.target_visible,
+                                                                          t.camera_rpy_rad)
+
+
+def test_write_labels_writes_what_export_writes(tmp_path):
+    scene = Scene(seed=9, width=W, height=H, frames=30, target_px=(6.0, 30.0))
+    _, exported = export_clip(scene, str(tmp_path / "a"), "SYN_9")
+    written = write_labels(scene, str(tmp_path / "b"), "SYN_9")
+    with open(exported) as a, open(written) as b:
+        rows = a.read()
+        assert rows.count("\n") > 10 and rows == b.read()
 
 
 def test_cli_synth_writes_a_clip(tmp_path):

@@ -8,13 +8,13 @@ Label rows are ``frame,class,x,y,w,h`` with frame 0-based and ``x,y`` the top-le
 import csv
 import logging
 import os
-from typing import Tuple
+from typing import Iterable, Tuple
 
 import cv2
 import numpy as np
 
 from payload.errors import PayloadError, SourceError
-from payload.synth.scene import Scene
+from payload.synth.scene import Scene, SceneFrame
 
 log = logging.getLogger(__name__)
 
@@ -40,22 +40,22 @@ def export_clip(scene: Scene, out_dir: str, name: str) -> Tuple[str, str]:
 
 
 def write_labels(scene: Scene, out_dir: str, name: str) -> str:
-    """Render ``scene`` for its ground truth only: the labels CSV (same format as export_clip)."""
+    """The labels CSV of ``scene`` (same format as export_clip), from its ground truth alone (not drawn)."""
     if scene.frames <= 0:
         raise PayloadError(f"synth labels {name}: frames={scene.frames}, expected a finite clip (frames > 0)")
     os.makedirs(out_dir, exist_ok=True)
     csv_path = os.path.join(out_dir, name + ".csv")
-    _write_rows(scene, csv_path, lambda frame: None)
+    _write_rows(scene.truth(), csv_path, lambda frame: None)
     return csv_path
 
 
-def _write_rows(scene: Scene, csv_path: str, each_frame) -> int:
+def _write_rows(frames: Iterable[SceneFrame], csv_path: str, each_frame) -> int:
     """Halmstad-style label rows (1-based x, y) for every frame with a visible drone; returns their count."""
     visible = 0
     with open(csv_path, "w", newline="") as fh:
         rows = csv.writer(fh)
         rows.writerow(["frame", "class", "x", "y", "w", "h"])
-        for frame in scene:
+        for frame in frames:
             each_frame(frame)
             if frame.target_xyxy is not None:
                 x1, y1, x2, y2 = (float(v) for v in frame.target_xyxy)

@@ -42,10 +42,10 @@ class SceneFrame:
     not hidden by clutter (1.0 = fully visible, 0.0 = out of view or hidden).
     """
 
-    image: np.ndarray
+    image: Optional[np.ndarray]  # None from Scene.truth()
     index: int
     target_xyxy: Optional[np.ndarray]
-    homography: np.ndarray
+    homography: Optional[np.ndarray]  # None from Scene.truth()
     camera_rpy_rad: Tuple[float, float, float]
     target_span_px: Optional[float] = None
     target_visible: float = 0.0
@@ -156,21 +156,30 @@ class Scene:
             if isinstance(backdrop, VideoBackdrop):
                 backdrop.close()
 
+    def truth(self) -> Iterator[SceneFrame]:
+        """The frames' ground truth without drawing them (``image`` and ``homography`` are None):
+        the same boxes as iterating the scene, at a fraction of the cost. The drone, camera and
+        clutter have random streams of their own, so leaving the drawing out changes none of them."""
+        return self._frames(None)
+
     def _frames(self, backdrop) -> Iterator[SceneFrame]:
+        """Frames drawn over ``backdrop``; with None, only their ground truth (see truth())."""
         w, h, lim = self.width, self.height, self.limits
+        draw = backdrop is not None
         cam = CameraPath(self._rng("camera"), lim, self.fps, shake=self.shake, jump_rate_hz=self.jump_rate_hz)
         target = _TargetPath(self._rng("target"), lim, self.fps, self.target_px)
         model = DroneModel(self._rng("model"))
         near = clutter_mod.Clutter(self._rng("clutter"), self.lens, self.n_clutter, buildings=not self.background)
-        birds = Birds(self._rng("birds"), lim, self.n_birds, self.fps)
-        cars = Cars(self._rng("cars"), getattr(backdrop, "ground_to_backdrop", None), self.n_cars, self.fps)
-        noise_rng = self._rng("noise")
-        sigma = noise_rng.uniform(1.5, 4.0) * self.noise
-        margin = 32
-        n = noise_rng.standard_normal((h + margin, w + margin, 3), dtype=np.float32) * sigma
-        noise_pos = np.clip(np.rint(n), 0, 255).astype(np.uint8)
-        noise_neg = np.clip(np.rint(-n), 0, 255).astype(np.uint8)
-        del n
+        if draw:
+            birds = Birds(self._rng("birds"), lim, self.n_birds, self.fps)
+            cars = Cars(self._rng("cars"), getattr(backdrop, "ground_to_backdrop", None), self.n_cars, self.fps)
+            noise_rng = self._rng("noise")
+            sigma = noise_rng.uniform(1.5, 4.0) * self.noise
+            margin = 32
+            n = noise_rng.standard_normal((h + margin, w + margin, 3), dtype=np.float32) * sigma
+            noise_pos = np.clip(np.rint(n), 0, 255).astype(np.uint8)
+            noise_neg = np.clip(np.rint(-n), 0, 255).astype(np.uint8)
+            del n
         zoom_mid = math.sqrt(lim.zoom_min * lim.zoom_max)
         haze_colour = (205.0, 200.0, 195.0)
         H_prev = None
@@ -179,14 +188,16 @@ class Scene:
         while self.frames <= 0 or index < self.frames:
             target.step()
             pose = cam.step(target.yaw, target.pitch)
-            H = backdrop.homography(pose)
-            image = cv2.warpPerspective(backdrop.image_for(index), H, (w, h), flags=cv2.INTER_LINEAR,
-                                        borderMode=cv2.BORDER_REFLECT)
-            step_h = np.eye(3) if H_prev is None else H @ np.linalg.inv(H_prev)
-            step_h /= step_h[2, 2]
-            H_prev = H
-            cars.draw(image, H)
-            birds.draw(image, self.lens, pose)
+            image = step_h = None
+            if draw:
+                H = backdrop.homography(pose)
+                image = cv2.warpPerspective(backdrop.image_for(index), H, (w, h), flags=cv2.INTER_LINEAR,
+                                            borderMode=cv2.BORDER_REFLECT)
+                step_h = np.eye(3) if H_prev is None else H @ np.linalg.inv(H_prev)
+                step_h /= step_h[2, 2]
+                H_prev = H
+                cars.draw(image, H)
+                birds.draw(image, self.lens, pose)
 
             dirs = [direction(target.yaw, target.pitch)] + ([] if dir_prev is None else [dir_prev])
             uv, depth = self.lens.project_directions(pose, np.array(dirs))
@@ -209,21 +220,22 @@ class Scene:
                 sprite = model.render(span, (float(xy[0]), float(xy[1])), target.heading, target.view_elev, tilt,
                                       (float(blur[0]), float(blur[1])), haze=haze, haze_colour=haze_colour)
                 box, seen = self._composite(image, sprite, shapes)
-            clutter_mod.draw(image, shapes)
-            if sigma > 0:
-                ox, oy = noise_rng.integers(0, margin, 2)
-                cv2.add(image, noise_pos[oy:oy + h, ox:ox + w], dst=image)
-                cv2.subtract(image, noise_neg[oy:oy + h, ox:ox + w], dst=image)
+            if draw:
+                clutter_mod.draw(image, shapes)
+                if sigma > 0:
+                    ox, oy = noise_rng.integers(0, margin, 2)
+                    cv2.add(image, noise_pos[oy:oy + h, ox:ox + w], dst=image)
+                    cv2.subtract(image, noise_neg[oy:oy + h, ox:ox + w], dst=image)
             yield SceneFrame(
                 image=image, index=index, target_xyxy=box, homography=step_h,
                 camera_rpy_rad=(pose.roll_rad, pose.pitch_rad, pose.yaw_rad), target_span_px=span, target_visible=seen,
             )
             index += 1
 
-    def _composite(self, image: np.ndarray, sprite, shapes) -> Tuple[Optional[np.ndarray], float]:
-        """Blend the sprite in (if rendering the target); return the box of its visible pixels
-        and the visible share of its alpha."""
-        h, w = image.shape[:2]
+    def _composite(self, image: Optional[np.ndarray], sprite, shapes) -> Tuple[Optional[np.ndarray], float]:
+        """Blend the sprite in (if rendering the target and given an image); return the box of its
+        visible pixels and the visible share of its alpha."""
+        h, w = self.height, self.width
         sh, sw = sprite.alpha.shape
         x0, y0 = max(sprite.x0, 0), max(sprite.y0, 0)
         x1, y1 = min(sprite.x0 + sw, w), min(sprite.y0 + sh, h)
@@ -231,7 +243,7 @@ class Scene:
             return None, 0.0
         a = sprite.alpha[y0 - sprite.y0:y1 - sprite.y0, x0 - sprite.x0:x1 - sprite.x0]
         p = sprite.colour[y0 - sprite.y0:y1 - sprite.y0, x0 - sprite.x0:x1 - sprite.x0]
-        if self.render_target:
+        if self.render_target and image is not None:
             roi = image[y0:y1, x0:x1]
             roi[:] = np.clip(roi * (1.0 - a[..., None]) + p + 0.5, 0, 255).astype(np.uint8)
         covered = clutter_mod.mask_in(shapes, x0, y0, x1 - x0, y1 - y0) if shapes else 0
