@@ -11,16 +11,9 @@ from training import mine_locks
 
 def test_collects_the_locked_drone_as_drone_patches():
     scene = Scene(seed=11, width=1920, height=1080, frames=60, target_px=(6.0, 20.0))
-    truth = {}
-
-    def images():
-        for sf in scene:
-            truth[sf.index] = sf.target_xyxy
-            yield sf.index, sf.image
-
     collector = mine_locks.Collector(every=2)
     glad = Glad(Config().detector)
-    mine_locks.run_clip(glad, collector, "synthetic", images(), truth.get)
+    mine_locks.run_clip(glad, collector, "synthetic", ((sf.index, sf.image, sf.target_xyxy) for sf in scene))
     assert collector.x, "GLAD locked on nothing in 60 frames of seed 11"
     assert all(p.shape == (PATCH_PX, PATCH_PX, 3) and p.dtype == np.uint8 for p in collector.x)
     # seed 11's drone (a clip of tests/test_glad_synthetic.py) is locked within a few frames:

@@ -15,8 +15,7 @@ writes training/cache/<name>_cls.npz (x [K,32,32,3], y [K]).
 import argparse
 import os
 import sys
-
-import numpy as np
+from collections import Counter
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.config import load_config  # noqa: E402
@@ -24,8 +23,8 @@ from payload.detect.patches import crop_patches  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
 from payload.types import Frame  # noqa: E402
-from training.build_cache import CACHE  # noqa: E402
-from training.halmstad import frames, labels, splits  # noqa: E402
+from training.build_cache import CACHE, clip_frames, save_extra_sets  # noqa: E402
+from training.halmstad import splits  # noqa: E402
 from training.mine_candidates import label  # noqa: E402
 
 FIRST_SEED = 4000  # apart from the build (1000-1179), mining (2000-3029) and eval (7-36, 100-109, 200-214) seeds
@@ -35,7 +34,7 @@ class Collector:
     def __init__(self, every):
         self.every = every
         self.x, self.y = [], []
-        self.counts = {}
+        self.counts = Counter()
 
     def add(self, source, index, image, result, gt):
         if index % self.every or not len(result.detections):
@@ -46,16 +45,16 @@ class Collector:
             return
         self.x.append(crop_patches(image, box[None])[0])
         self.y.append(y)
-        key = (source, y)
-        self.counts[key] = self.counts.get(key, 0) + 1
+        self.counts[(source, y)] += 1
 
 
-def run_clip(glad, collector, source, images, gt_of, fps=30.0):
+def run_clip(glad, collector, source, frames, fps=30.0):
+    """GLAD from a fresh start over ``frames``: (index, image, the drone's xyxy or None)."""
     glad.reset()
-    for index, image in images:
+    for index, image, gt in frames:
         t_ns = int(index * 1e9 / fps)
         frame = Frame(image=image, index=index, t_capture_ns=t_ns, t_wall_ns=t_ns)
-        collector.add(source, index, image, glad.process(frame), gt_of(index))
+        collector.add(source, index, image, glad.process(frame), gt)
 
 
 def main():
@@ -77,28 +76,16 @@ def main():
     all_splits = splits()
     for split in args.halmstad:
         for ci, clip in enumerate(all_splits[split]):
-            boxes = labels(clip)
-
-            def gt_of(i, boxes=boxes):
-                drones = [b for c, b in boxes.get(i, []) if c.lower() == "drone"]
-                return drones[0] if drones else None
-
-            run_clip(glad, collector, split, frames(clip), gt_of)
-            print("%s %d/%d %s %s" % (split, ci + 1, len(all_splits[split]), clip, collector.counts), flush=True)
+            run_clip(glad, collector, split,
+                     ((i, image, drones[0] if drones else None) for i, image, drones, _ in clip_frames(clip)))
+            print("%s %d/%d %s %s" % (split, ci + 1, len(all_splits[split]), clip, dict(collector.counts)), flush=True)
     for k in range(args.scenes):
         scene = Scene(seed=args.first_seed + k, frames=args.frames, target_px=tuple(args.target_px))
-        truth = {}
-
-        def images(scene=scene, truth=truth):
-            for sf in scene:
-                truth[sf.index] = sf.target_xyxy
-                yield sf.index, sf.image
-
-        run_clip(glad, collector, "synthetic", images(), lambda i, truth=truth: truth.get(i))
-        print("scene %d/%d %s" % (k + 1, args.scenes, collector.counts), flush=True)
-    out = os.path.join(CACHE, args.name + "_cls.npz")
-    np.savez(out, x=np.stack(collector.x).astype(np.uint8), y=np.array(collector.y, np.int64))
-    print("wrote %s: %d patches, %d drone; %s" % (out, len(collector.y), int(np.sum(collector.y)), collector.counts))
+        run_clip(glad, collector, "synthetic", ((sf.index, sf.image, sf.target_xyxy) for sf in scene))
+        print("scene %d/%d %s" % (k + 1, args.scenes, dict(collector.counts)), flush=True)
+    save_extra_sets(args.name, collector.x, collector.y)
+    print("wrote %s: %d patches, %d drone; %s" % (os.path.join(CACHE, args.name + "_cls.npz"), len(collector.y),
+                                                  sum(collector.y), dict(collector.counts)))
 
 
 if __name__ == "__main__":
