@@ -8,6 +8,8 @@ Classifier ONNX contract: input 'patches' [N, 3, 32, 32] float32 RGB [0, 1];
   output 'prob' [N, 2] softmax, column 1 = drone.
 """
 
+import os
+
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -97,6 +99,22 @@ class ClassifierExport(nn.Module):
 
 def count_params(m):
     return sum(p.numel() for p in m.parameters())
+
+
+def save_checkpoint(path: str, net: nn.Module, opt: torch.optim.Optimizer, step: int, **extra) -> None:
+    """Model, optimizer and step to ``path``, replaced at once: a run killed while writing keeps
+    its previous checkpoint to resume from."""
+    torch.save({"model": net.state_dict(), "opt": opt.state_dict(), "step": step, **extra}, path + ".tmp")
+    os.replace(path + ".tmp", path)
+
+
+def resume(path: str, net: nn.Module, opt: torch.optim.Optimizer, device: torch.device) -> int:
+    """Load a checkpoint written by save_checkpoint into ``net`` and ``opt``; returns its step."""
+    ck = torch.load(path, weights_only=False, map_location=device)
+    net.load_state_dict(ck["model"])
+    opt.load_state_dict(ck["opt"])
+    print("resumed %s step=%d" % (path, ck["step"]), flush=True)
+    return int(ck["step"])
 
 
 def training_device() -> torch.device:

@@ -18,7 +18,7 @@ import torch.nn.functional as F
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.detect.patches import patches_to_input  # noqa: E402
 from training.augment import photometric  # noqa: E402
-from training.net import PatchClassifier, count_params, training_device  # noqa: E402
+from training.net import PatchClassifier, count_params, resume, save_checkpoint, training_device  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CACHE = os.path.join(HERE, "cache")
@@ -75,10 +75,7 @@ def main():
         net.load_state_dict(torch.load(args.init, weights_only=False, map_location=device)["model"])
     last = os.path.join(run, "last.pt")
     if args.resume and os.path.exists(last):
-        ck = torch.load(last, weights_only=False, map_location=device)
-        net.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["opt"])
-        step = ck["step"]
+        step = resume(last, net, opt, device)
     print("params=%d train=%d (pos %d, hard %d) holdout=%d" % (count_params(net), len(train), len(pos), len(hard), len(hold)),
           flush=True)
     t0 = time.time()
@@ -106,8 +103,7 @@ def main():
             print("step=%d loss=%.3f holdout acc=%.4f P=%.4f R=%.4f s/step=%.3f"
                   % (step, loss.item(), float(((p >= 0.5) == (y == 1)).mean()), prec, rec, (time.time() - t0) / 200), flush=True)
             t0 = time.time()
-            torch.save({"model": net.state_dict(), "opt": opt.state_dict(), "step": step}, last + ".tmp")
-            os.replace(last + ".tmp", last)
+            save_checkpoint(last, net, opt, step)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from training.augment import photometric  # noqa: E402
-from training.net import STRIDE, TinyCenterNet, count_params, training_device  # noqa: E402
+from training.net import STRIDE, TinyCenterNet, count_params, resume, save_checkpoint, training_device  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CACHE = os.path.join(HERE, "cache")
@@ -162,11 +162,7 @@ def main():
     step = 0
     last = os.path.join(run, "last.pt")
     if args.resume and os.path.exists(last):
-        ck = torch.load(last, weights_only=False, map_location=device)
-        net.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["opt"])
-        step = ck["step"]
-        print("resumed step=%d" % step, flush=True)
+        step = resume(last, net, opt, device)
     extra = None
     if args.synth:
         files = [np.load(path) for path in args.synth]
@@ -212,8 +208,7 @@ def main():
                   % (step, *avg, lr, (time.time() - t0) / 50), flush=True)
             t0 = time.time()
         if step % 200 == 0 or step == args.steps:
-            torch.save({"model": net.state_dict(), "opt": opt.state_dict(), "step": step, "width": args.width}, last + ".tmp")
-            os.replace(last + ".tmp", last)
+            save_checkpoint(last, net, opt, step, width=args.width)
     print("done step=%d" % step, flush=True)
 
 
