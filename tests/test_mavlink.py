@@ -79,7 +79,11 @@ class FakeAutopilot:
         if not os.path.exists(self.record):
             return []
         with open(self.record) as fh:
-            rows = [json.loads(line) for line in fh if line.endswith("\n")]
+            text = fh.read()
+        # Whole lines only, from one read: the autopilot may be half-way through its last line.
+        # (Iterating the file instead yields that half as a line without "\n" and then, the file
+        # having grown meanwhile, the other half as a line of its own, which does end in "\n".)
+        rows = [json.loads(line) for line in text.split("\n")[:-1]]
         if type_ is not None:
             rows = [r for r in rows if r["type"] == type_ and r.get("dir") == direction]
         return rows
