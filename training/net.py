@@ -108,10 +108,17 @@ def save_checkpoint(path: str, net: nn.Module, opt: torch.optim.Optimizer, step:
     os.replace(path + ".tmp", path)
 
 
-def resume(path: str, net: nn.Module, opt: torch.optim.Optimizer, device: torch.device) -> int:
-    """Load a checkpoint written by save_checkpoint into ``net`` and ``opt``; returns its step."""
+def load_weights(path: str, net: nn.Module, device: torch.device) -> dict:
+    """The network weights of a checkpoint written by save_checkpoint into ``net`` (``--init``);
+    returns the whole checkpoint."""
     ck = torch.load(path, weights_only=False, map_location=device)
     net.load_state_dict(ck["model"])
+    return ck
+
+
+def resume(path: str, net: nn.Module, opt: torch.optim.Optimizer, device: torch.device) -> int:
+    """Load a checkpoint written by save_checkpoint into ``net`` and ``opt``; returns its step."""
+    ck = load_weights(path, net, device)
     opt.load_state_dict(ck["opt"])
     print("resumed %s step=%d" % (path, ck["step"]), flush=True)
     return int(ck["step"])

@@ -18,7 +18,7 @@ import torch.nn.functional as F
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.detect.patches import patches_to_input  # noqa: E402
 from training.augment import photometric  # noqa: E402
-from training.net import PatchClassifier, count_params, resume, save_checkpoint, training_device  # noqa: E402
+from training.net import PatchClassifier, count_params, load_weights, resume, save_checkpoint, training_device  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CACHE = os.path.join(HERE, "cache")
@@ -72,7 +72,7 @@ def main():
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     step = 0
     if args.init:
-        net.load_state_dict(torch.load(args.init, weights_only=False, map_location=device)["model"])
+        load_weights(args.init, net, device)
     last = os.path.join(run, "last.pt")
     if args.resume and os.path.exists(last):
         step = resume(last, net, opt, device)

@@ -22,7 +22,15 @@ import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from training.augment import photometric  # noqa: E402
-from training.net import STRIDE, TinyCenterNet, count_params, resume, save_checkpoint, training_device  # noqa: E402
+from training.net import (  # noqa: E402
+    STRIDE,
+    TinyCenterNet,
+    count_params,
+    load_weights,
+    resume,
+    save_checkpoint,
+    training_device,
+)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CACHE = os.path.join(HERE, "cache")
@@ -178,7 +186,7 @@ def main():
         net = net.to(device)
         opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     elif step == 0 and args.init:
-        net.load_state_dict(torch.load(args.init, weights_only=False, map_location=device)["model"])
+        load_weights(args.init, net, device)
         print("init from %s" % args.init, flush=True)
     print("params=%d steps=%d batch=%d size=%d" % (count_params(net), args.steps, args.batch, args.size), flush=True)
     net.train()
