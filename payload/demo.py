@@ -14,7 +14,7 @@ import subprocess
 import sys
 import time
 from collections import Counter
-from typing import Dict, Optional
+from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -62,20 +62,26 @@ def wait_listening(autopilot: subprocess.Popen, record: str, timeout_s: float = 
     log.warning("demo: fake autopilot not listening after %.0f s; starting anyway", timeout_s)
 
 
+def record_rows(path: str) -> List[dict]:
+    """The fake autopilot's record so far: one dict a complete line. Read at once and cut at line
+    ends, because the autopilot may be half-way through its last line (iterating the file would
+    yield that half, then its other half as a line of its own once the file has grown)."""
+    if not os.path.exists(path):
+        return []  # not started writing yet
+    with open(path, encoding="utf-8") as fh:
+        text = fh.read()
+    rows = []
+    for line in text.split("\n")[:-1]:
+        try:
+            rows.append(json.loads(line))
+        except ValueError:
+            pass  # a line cut by a kill, continued by a restarted autopilot
+    return rows
+
+
 def read_record(path: str) -> Counter:
     """Message type -> count of what the fake autopilot received from us."""
-    counts: Counter = Counter()
-    if not os.path.exists(path):
-        return counts
-    with open(path, encoding="utf-8") as fh:
-        for line in fh:
-            try:
-                row = json.loads(line)
-            except ValueError:
-                continue
-            if row.get("dir") == "in":
-                counts[row.get("type", "?")] += 1
-    return counts
+    return Counter(row.get("type", "?") for row in record_rows(path) if row.get("dir") == "in")
 
 
 def demo_config(base: Config, out_dir: str, frames: int, port: int) -> Config:

@@ -1,7 +1,6 @@
 """The payload as a process (`glad-payload run`) against the fake autopilot over real UDP."""
 
 import csv
-import json
 import math
 import os
 import signal
@@ -12,7 +11,7 @@ import time
 import pytest
 import yaml
 
-from payload.demo import FAKE_AUTOPILOT, free_udp_port
+from payload.demo import FAKE_AUTOPILOT, free_udp_port, record_rows
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TARGET_TYPES = ("CAMERA_TRACKING_IMAGE_STATUS", "DEBUG_VECT")
@@ -48,20 +47,6 @@ def start_payload(config, *extra, log_path):
         [sys.executable, "-m", "payload", "run", "--config", config, *extra],
         cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=open(log_path, "w"),
     )
-
-
-def read_record(path):
-    rows = []
-    if not os.path.exists(path):
-        return rows  # the autopilot has not started writing yet
-    with open(path) as fh:
-        text = fh.read()
-    for line in text.split("\n")[:-1]:  # whole lines: the last may be half written (test_mavlink's rows())
-        try:
-            rows.append(json.loads(line))
-        except ValueError:
-            pass  # a line cut by a kill, continued by the restarted autopilot
-    return rows
 
 
 def read_decisions(out_dir):
@@ -133,7 +118,7 @@ def run_exchange(tmp_path, payload_port, autopilot_port, router=None):
         wait_for(lambda: decisions_count(out_dir) >= 100, 120, "100 processed frames")
         autopilot.stdin.write("disable\n")
         autopilot.stdin.flush()
-        wait_for(lambda: any(r.get("type") == "COMMAND_ACK" for r in read_record(record)), 10, "COMMAND_ACK")
+        wait_for(lambda: any(r.get("type") == "COMMAND_ACK" for r in record_rows(record)), 10, "COMMAND_ACK")
         time.sleep(1.5)
         autopilot.stdin.write("enable\n")
         autopilot.stdin.flush()
@@ -145,7 +130,7 @@ def run_exchange(tmp_path, payload_port, autopilot_port, router=None):
         stop(autopilot)
         if router is not None:
             stop(router)
-    rows = read_record(record)
+    rows = record_rows(record)
     decisions = read_decisions(out_dir)
     log = open(tmp_path / "payload.log").read()
     assert len(decisions) >= 300
@@ -200,7 +185,7 @@ def test_autopilot_killed_and_back(tmp_path):
     autopilot = start_autopilot(port, first)
     payload = start_payload(config, log_path=log_path)
     try:
-        wait_for(lambda: any(r["type"] in TARGET_TYPES for r in read_record(first)), 120, "first target message")
+        wait_for(lambda: any(r["type"] in TARGET_TYPES for r in record_rows(first)), 120, "first target message")
         # targets go out before the autopilot's heartbeat is in: only one that was found can be lost
         wait_for(lambda: "autopilot found" in open(log_path).read(), 15, "the autopilot to be found")
         autopilot.kill()
@@ -210,8 +195,8 @@ def test_autopilot_killed_and_back(tmp_path):
         time.sleep(2.0)
         assert decisions_count(out_dir) > frames_at_loss + 10, "frames stopped while the autopilot was away"
         autopilot = start_autopilot(port, second)
-        wait_for(lambda: any(r["type"] in TARGET_TYPES for r in read_record(second)), 30, "sending to resume")
-        wait_for(lambda: any(r["type"] == "HEARTBEAT" and r.get("compid") == 100 for r in read_record(second)),
+        wait_for(lambda: any(r["type"] in TARGET_TYPES for r in record_rows(second)), 30, "sending to resume")
+        wait_for(lambda: any(r["type"] == "HEARTBEAT" and r.get("compid") == 100 for r in record_rows(second)),
                  5, "our heartbeat to reach the new autopilot")
         assert stop(payload) == 0
     finally:
