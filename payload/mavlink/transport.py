@@ -32,6 +32,7 @@ _MAX_PACKET = 280  # MAVLink 2: 10 header + 255 payload + 2 crc + 13 signature
 _MAX_BUFFER = 4 * _MAX_PACKET
 _READ_SIZE = 4096
 _DATAGRAMS_PER_CALL = 64
+_MAX_BAD_CHUNKS = 4  # a datagram from an autopilot or router holds whole, valid packets
 _TRANSIENT_SEND_ERRORS = (errno.ECONNREFUSED, errno.EAGAIN, errno.EWOULDBLOCK, errno.ENOBUFS,
                           errno.ENETUNREACH, errno.EHOSTUNREACH)
 
@@ -60,12 +61,23 @@ class Parser(mavlink.MAVLink):
         self.have_prefix_error = False
 
     def parse_datagram(self, data: bytes) -> List[Any]:
-        """All messages in one datagram; nothing carries over to the next one."""
+        """The messages in one datagram; nothing carries over to the next one. Parsing stops at the
+        _MAX_BAD_CHUNKS-th unparseable chunk, so a datagram of garbage costs little."""
         self.reset()
+        out: List[Any] = []
+        bad = 0
         try:
-            return self.parse_buffer(data) or []
+            m = self.parse_char(data)
+            while m is not None:
+                out.append(m)
+                if m.get_type() == "BAD_DATA":
+                    bad += 1
+                    if bad >= _MAX_BAD_CHUNKS:
+                        break
+                m = self.parse_char(b"")
         finally:
             self.reset()
+        return out
 
     def parse_stream(self, data: bytes) -> List[Any]:
         """Messages completed by ``data`` on a byte stream; unparsed bytes beyond _MAX_BUFFER are dropped."""
