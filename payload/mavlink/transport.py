@@ -144,15 +144,19 @@ class UdpTransport(_Transport):
                 break
             except ConnectionRefusedError:  # udpout: ICMP port unreachable from an earlier send
                 continue
-            if self.listen and self.exclusive and addr != self.peer:
-                self.foreign += 1
-                self.last_source = addr
-                continue
-            if not data or data[0] not in _MARKERS:
-                self.garbage += 1
-                continue
-            out.extend((addr, m) for m in self.mav.parse_datagram(data))
+            out.extend(self.messages_from(data, addr))
         return out
+
+    def messages_from(self, data: bytes, addr: Address) -> List[Any]:
+        """(addr, message) pairs of one datagram from ``addr``, after the source and marker checks."""
+        if self.listen and self.exclusive and addr != self.peer:
+            self.foreign += 1
+            self.last_source = addr
+            return []
+        if not data or data[0] not in _MARKERS:
+            self.garbage += 1
+            return []
+        return [(addr, m) for m in self.mav.parse_datagram(data)]
 
     def write(self, buf: bytes) -> None:
         if self.peer is None:
