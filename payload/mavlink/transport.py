@@ -211,8 +211,10 @@ class SerialTransport(_StreamTransport):
 
     def __init__(self, device: str, baud: int, src_system: int, src_component: int):
         super().__init__(src_system, src_component)
-        import serial  # only serial links need pyserial
-
+        try:
+            import serial  # only serial links need pyserial
+        except ImportError:
+            raise OSError("pyserial is not installed (pip install pyserial)") from None
         self.port = serial.Serial(device, baudrate=baud, timeout=0, write_timeout=0.5)
         self.fd = self.port.fileno()
 
