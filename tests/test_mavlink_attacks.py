@@ -390,3 +390,70 @@ def test_random_senders_sysids_and_commands_do_not_flood_the_log(seed, caplog):
     assert 1 <= len([w for w in warnings if w.startswith("ignoring autopilot heartbeat")]) <= 5
     assert 1 <= len([w for w in warnings if w.startswith("ignoring datagrams")]) <= 5
     ap.close()
+
+
+# --- the same through the service process ----------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_payload_process_restart_refuses_a_replayed_signed_disable(fakes, tmp_path):
+    """`glad-payload run` with signing, as systemd runs it (STATE_DIRECTORY set): a genuine signed
+    disable and enable, the payload stopped (SIGTERM) and started again, the captured disable
+    replayed: no ACK and the new process stays ACTIVE (heartbeat system_status 4)."""
+    key = tmp_path / "mavlink.key"
+    key.write_text(os.urandom(32).hex())
+    port = free_port()
+    fake = start_fake(fakes, tmp_path, f"udpin:{LOCAL}:{port}", "--signing-key", str(key))
+    cfg = {
+        "capture": {"source": "synthetic", "pace": True,
+                    "synthetic": {"seed": 7, "width": 320, "height": 240, "fps": 10.0, "frames": 0}},
+        "mavlink": {"connection": f"udpout:{LOCAL}:{port}", "attitude_rate_hz": 0.0,
+                    "signing": {"enabled": True, "key_file": str(key)}},
+    }
+    config = tmp_path / "payload.yaml"
+    config.write_text(json.dumps(cfg))  # JSON is YAML
+    state_dir = tmp_path / "state"
+    state_dir.mkdir()
+    env = dict(os.environ, PYTHONUNBUFFERED="1", STATE_DIRECTORY=str(state_dir))
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+    def start(name):
+        log = open(str(tmp_path / name), "w")
+        proc = subprocess.Popen([sys.executable, "-m", "payload", "run", "--config", str(config)], cwd=repo, env=env,
+                                stdout=subprocess.DEVNULL, stderr=log)
+        return proc, log
+
+    def heartbeats_since(t):
+        return [r["fields"]["system_status"] for r in fake.rows("HEARTBEAT") if r["compid"] == 100 and r["t"] > t]
+
+    def stop(proc):
+        proc.send_signal(2)  # SIGINT, like SIGTERM: a clean stop that saves the signing state
+        assert proc.wait(30) == 0
+
+    first, log1 = start("first.log")
+    try:
+        wait_for(lambda: heartbeats_since(0), 60, "the first payload's heartbeat")
+        fake.command("disable")
+        wait_for(lambda: command_acks(fake) == [ACCEPTED], 10, "ACK of disable")
+        fake.command("enable")
+        wait_for(lambda: command_acks(fake) == [ACCEPTED, ACCEPTED], 10, "ACK of enable")
+    finally:
+        stop(first)
+        log1.close()
+
+    second, log2 = start("second.log")
+    try:
+        t_start = time.monotonic()
+        wait_for(lambda: heartbeats_since(t_start), 60, "the restarted payload's heartbeat")
+        fake.command("replay,0")
+        t_replay = time.monotonic()
+        time.sleep(2.5)
+        assert command_acks(fake) == [ACCEPTED, ACCEPTED], "the replayed disable was acknowledged"
+        after = heartbeats_since(t_replay)
+        assert after and all(s == 4 for s in after), after  # ACTIVE: detection still enabled
+    finally:
+        stop(second)
+        log2.close()
+    log = (tmp_path / "second.log").read_text()
+    assert "rejected packet from sysid=255" in log and "Traceback" not in log
+    assert json.loads((state_dir / "mavlink-signing.json").read_text())["streams"]
