@@ -457,3 +457,34 @@ def test_payload_process_restart_refuses_a_replayed_signed_disable(fakes, tmp_pa
     log = (tmp_path / "second.log").read_text()
     assert "rejected packet from sysid=255" in log and "Traceback" not in log
     assert json.loads((state_dir / "mavlink-signing.json").read_text())["streams"]
+
+
+def test_tcp_garbage_stream_leaves_the_parser_bounded():
+    """2 MiB of garbage (many 0xFD markers with bogus lengths) down a TCP connection, then
+    heartbeats: they are heard, and the parser never holds more than ~5 KiB."""
+    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    server.bind((LOCAL, 0))
+    server.listen(1)
+    link = MavlinkLink(link_cfg("tcp:%s:%d" % server.getsockname()))
+    rnd = random.Random(3)
+    garbage = bytes(0xFD if rnd.random() < 0.05 else rnd.randrange(256) for _ in range(1 << 16)) * 32
+    with link:
+        conn, _ = server.accept()
+        wait_for(lambda: link.status.connected, 5.0, "TCP connected")
+        biggest = 0
+        for i in range(0, len(garbage), 1 << 14):
+            conn.sendall(garbage[i:i + (1 << 14)])
+            biggest = max(biggest, link._conn.mav.buf_len())
+        t_end = time.monotonic()
+        hb = M.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(M.MAVLink(None, 1, 1))
+
+        def heard():  # the autopilot keeps sending at 20 Hz (the garbage's last bogus header may swallow one)
+            conn.sendall(hb)
+            biggest_now = link._conn.mav.buf_len()
+            assert biggest_now <= 4 * 280 + 4096, biggest_now
+            return link.status.autopilot_seen
+        wait_for(heard, 10.0, "the heartbeat after the garbage")
+        assert biggest <= 4 * 280 + 4096, biggest
+        assert time.monotonic() - t_end < 5.0
+        conn.close()
+    server.close()

@@ -187,6 +187,7 @@ class TcpTransport(_StreamTransport):
     def __init__(self, host: str, port: int, src_system: int, src_component: int):
         super().__init__(src_system, src_component)
         self.sock = socket.create_connection((host, port), timeout=2.0)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # small messages, sent at once
         self.sock.settimeout(0.5)  # a send that cannot go out in 0.5 s breaks the connection
         self.fd = self.sock.fileno()
 
