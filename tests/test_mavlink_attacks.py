@@ -488,3 +488,17 @@ def test_tcp_garbage_stream_leaves_the_parser_bounded():
         assert time.monotonic() - t_end < 5.0
         conn.close()
     server.close()
+
+
+@pytest.mark.parametrize("content", [b"\xff\xfe not json", b'{"timestamp": "x", "streams": []}', b"[]", b""])
+def test_broken_signing_state_is_one_warning_and_the_link_runs(fakes, tmp_path, monkeypatch, caplog, content):
+    fake, cfg, key = signed_fake(fakes, tmp_path, monkeypatch)
+    (tmp_path / "mavlink.key.state").write_bytes(content)
+    with caplog.at_level(logging.WARNING, logger="payload.mavlink.signing"), MavlinkLink(cfg) as link:
+        wait_for(lambda: link.status.autopilot_seen, 10.0, "signed autopilot")
+        fake.command("disable")
+        wait_for(lambda: command_acks(fake) == [ACCEPTED], 5.0, "ACK of disable")
+    lines = [r.getMessage() for r in caplog.records if "signing state" in r.getMessage()]
+    assert len(lines) == 1 and "cannot read" in lines[0] and "mavlink.key.state" in lines[0], lines
+    # rewritten whole by the accepted command
+    assert json.loads((tmp_path / "mavlink.key.state").read_text())["streams"]

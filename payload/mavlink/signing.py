@@ -140,6 +140,7 @@ class SigningState:
                 fh.flush()
                 os.fsync(fh.fileno())
             os.replace(tmp, self.path)
+            _fsync_dir(os.path.dirname(os.path.abspath(self.path)))  # the rename itself survives a power cut
         except OSError as exc:
             if not self._warned:
                 self._warned = True
@@ -148,3 +149,11 @@ class SigningState:
             return False
         self._saved = snapshot
         return True
+
+
+def _fsync_dir(path: str) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
