@@ -386,7 +386,9 @@ def test_outputs_landing_target_level_frame_and_rate_cap(fakes, tmp_path, caplog
             b = bearing_for(target, camera, mount_rotation(), None)  # attitude_rate_hz=0: none asked
             sent_frames += publisher.publish(target, b, (W, H)) > 0
             time.sleep(0.02)
-        assert 4 <= sent_frames <= 6 and publisher.stats.rate_limited >= 40
+        # (every frame not sent was rate-limited; a loaded machine may manage fewer than 50 frames)
+        assert 4 <= sent_frames <= 6 and publisher.stats.frames >= 20
+        assert publisher.stats.rate_limited == publisher.stats.frames - sent_frames
         wait_for(lambda: len(fake.rows("LANDING_TARGET")) >= sent_frames, 3.0, "LANDING_TARGET")
         assert not fake.rows("ATTITUDE") and not [r for r in fake.rows("COMMAND_LONG")
                                                     if r["fields"]["command"] == CMD_SET_MESSAGE_INTERVAL]
