@@ -17,13 +17,16 @@ It is system 1, component 1 (MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA) an
 - sends COMMAND_LONG like a ground station (system 255, component 190 by default) at given
   times (``--command-at T:ACTION``) or when a line ``ACTION`` arrives on stdin
   (``--stdin-control``). ACTION = enable | disable | NUMBER (a MAV_CMD id), optionally
-  followed by ``,sysid=N``, ``,compid=N``, ``,param1=X``, ``,unsigned``;
+  followed by ``,sysid=N``, ``,compid=N``, ``,param1=X``, ``,unsigned``, and for attacks on
+  signing ``,badkey`` (signed with a random key), ``,timestamp=N``, ``,linkid=N`` (default 7);
+  ``replay,I`` sends the bytes of the I-th command sent (0-based) again, unchanged;
 - with ``--signing-key FILE`` (32 raw bytes or 64 hex characters) signs what it sends and
   drops unsigned messages (recorded as BAD_DATA);
 - records every message it receives as one JSON line (flushed per line):
   ``{"dir": "in", "t": monotonic_s, "sysid", "compid", "type", "signed", "fields"}``;
   the first line is ``{"type": "START", "t_start_ns": ...}`` (its boot time on the
-  monotonic clock) and the commands it sends are recorded with ``"dir": "out"``.
+  monotonic clock) and the commands it sends are recorded with ``"dir": "out"`` and their
+  bytes in ``"hex"``.
 
 Runs until killed (SIGTERM/SIGINT) or for ``--duration`` seconds.
 """
@@ -100,7 +103,8 @@ def parse_action(text, default_sysid):
     if not parts:
         raise ValueError("empty command")
     head = parts[0].lower()
-    out = {"sysid": default_sysid, "compid": GCS_COMPID, "signed": True, "param1": 0.0}
+    out = {"sysid": default_sysid, "compid": GCS_COMPID, "signed": True, "param1": 0.0, "badkey": False,
+           "timestamp": None, "linkid": 7}
     if head in ("enable", "disable"):
         out["command"] = M.MAV_CMD_USER_1
         out["param1"] = 1.0 if head == "enable" else 0.0
@@ -109,6 +113,8 @@ def parse_action(text, default_sysid):
     for p in parts[1:]:
         if p == "unsigned":
             out["signed"] = False
+        elif p == "badkey":
+            out["badkey"] = True
         else:
             key, value = p.split("=", 1)
             out[key] = float(value) if key == "param1" else int(value)
@@ -131,6 +137,7 @@ class FakeAutopilot:
         self.attitude_of = trajectory if scene_seed is None else SceneAttitude(_scene_class(), scene_seed, args.scene_fps)
         self.next_attitude_ns = 0
         self.next_heartbeat_ns = 0
+        self.sent = []  # bytes of each command sent, for replay
         self.pending = sorted(
             (float(spec.split(":", 1)[0]), spec.split(":", 1)[1]) for spec in args.command_at
         )
@@ -146,20 +153,31 @@ class FakeAutopilot:
 
     def gcs_send(self, action):
         """Send COMMAND_LONG from another system id (a ground station) over the same link."""
+        if action.strip().lower().startswith("replay,"):
+            buf = self.sent[int(action.split(",")[1])]
+            self.conn.write(buf)
+            self.write({"dir": "out", "t": time.monotonic(), "type": "REPLAY", "hex": buf.hex()})
+            return
         spec = parse_action(action, self.args.gcs_sysid)
         gcs = M.MAVLink(self.conn, srcSystem=spec["sysid"], srcComponent=spec["compid"])
         if self.key and spec["signed"]:
-            gcs.signing.secret_key = self.key
+            gcs.signing.secret_key = os.urandom(32) if spec["badkey"] else self.key
             gcs.signing.sign_outgoing = True
-            gcs.signing.link_id = 7
-            gcs.signing.timestamp = self.conn.mav.signing.timestamp
+            gcs.signing.link_id = spec["linkid"]
+            ts = spec["timestamp"]
+            gcs.signing.timestamp = self.conn.mav.signing.timestamp if ts is None else ts
+            if ts is None:
+                self.conn.mav.signing.timestamp += 1  # the next command is newer, however fast it follows
         msg = M.MAVLink_command_long_message(
             self.args.target_sysid, self.args.target_compid, spec["command"], 0,
             spec["param1"], 0, 0, 0, 0, 0, 0,
         )
         gcs.send(msg)
+        buf = bytes(msg.get_msgbuf())
+        self.sent.append(buf)
         self.write({"dir": "out", "t": time.monotonic(), "sysid": spec["sysid"], "compid": spec["compid"],
-                    "type": "COMMAND_LONG", "signed": bool(self.key and spec["signed"]), "fields": _fields(msg)})
+                    "type": "COMMAND_LONG", "signed": bool(self.key and spec["signed"]), "fields": _fields(msg),
+                    "hex": buf.hex()})
 
     def on_message(self, msg):
         kind = msg.get_type()
@@ -207,15 +225,20 @@ class FakeAutopilot:
     def run(self):
         deadline_ns = self.start_ns + int(self.args.duration * 1e9) if self.args.duration > 0 else None
         stdin_open = self.args.stdin_control
+        stdin_buf = b""
         while deadline_ns is None or time.monotonic_ns() < deadline_ns:
             fd = self.conn.fd  # tcpin: changes from the listening socket to the accepted one
             readable, _, _ = select.select([fd, sys.stdin] if stdin_open else [fd], [], [], 0.002)
             if sys.stdin in readable:
-                line = sys.stdin.readline()
-                if not line:
+                # os.read, not readline: lines left in a file object's buffer would wait for the next select
+                data = os.read(sys.stdin.fileno(), 65536)
+                if not data:
                     stdin_open = False
-                elif line.strip():
-                    self.gcs_send(line)
+                stdin_buf += data
+                *lines, stdin_buf = stdin_buf.split(b"\n")
+                for line in lines:
+                    if line.strip():
+                        self.gcs_send(line.decode())
             if fd in readable:
                 while True:
                     msg = self.conn.recv_msg()

@@ -386,7 +386,9 @@ def test_outputs_landing_target_level_frame_and_rate_cap(fakes, tmp_path, caplog
             b = bearing_for(target, camera, mount_rotation(), None)  # attitude_rate_hz=0: none asked
             sent_frames += publisher.publish(target, b, (W, H)) > 0
             time.sleep(0.02)
-        assert 4 <= sent_frames <= 6 and publisher.stats.rate_limited >= 40
+        # (every frame not sent was rate-limited; a loaded machine may manage fewer than 50 frames)
+        assert 4 <= sent_frames <= 6 and publisher.stats.frames >= 20
+        assert publisher.stats.rate_limited == publisher.stats.frames - sent_frames
         wait_for(lambda: len(fake.rows("LANDING_TARGET")) >= sent_frames, 3.0, "LANDING_TARGET")
         assert not fake.rows("ATTITUDE") and not [r for r in fake.rows("COMMAND_LONG")
                                                     if r["fields"]["command"] == CMD_SET_MESSAGE_INTERVAL]
@@ -530,7 +532,7 @@ def test_missing_serial_device_is_retried_quietly(caplog):
     assert len(failures) == 1 and "/dev/ttyGLAD_missing0" in failures[0].getMessage()  # logged once, not per try
 
 
-def test_only_link_module_imports_pymavlink():
+def test_only_transport_module_imports_pymavlink():
     importers = []
     for root, _, files in os.walk(os.path.join(REPO, "payload")):
         for name in files:
@@ -539,7 +541,19 @@ def test_only_link_module_imports_pymavlink():
                 with open(path, encoding="utf-8") as fh:
                     if any(line.lstrip().startswith(("import pymavlink", "from pymavlink")) for line in fh):
                         importers.append(os.path.relpath(path, REPO))
-    assert importers == [os.path.join("payload", "mavlink", "link.py")]
+    assert importers == [os.path.join("payload", "mavlink", "transport.py")]
+
+
+def test_importing_the_link_leaves_the_environment_alone():
+    """It used to set MAVLINK20/MAVLINK_DIALECT for the whole process (issue 18); the v2 dialect is
+    now imported directly, whatever the environment says."""
+    code = ("import os; import payload.mavlink.link as l; "
+            "assert not [k for k in os.environ if k.startswith('MAVLINK')], 'environment changed'; "
+            "assert l._M.WIRE_PROTOCOL_VERSION == '2.0'; print('ok')")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MAVLINK")}
+    env["PYTHONPATH"] = REPO + os.pathsep + env.get("PYTHONPATH", "")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
 
 
 def test_fake_autopilot_follows_the_synthetic_scene_camera(fakes, tmp_path):

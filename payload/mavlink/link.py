@@ -1,4 +1,4 @@
-"""The MAVLink connection to the autopilot: the only module that imports pymavlink.
+"""The MAVLink connection to the autopilot (bytes in and out: ``payload.mavlink.transport``).
 
 ``MavlinkLink(cfg)`` owns one background thread that opens the connection (retrying with
 back-off), receives, sends our HEARTBEAT, keeps time in sync with the autopilot, asks for
@@ -28,38 +28,37 @@ from a system id in ``mavlink.command_sysids``; others are ignored and logged:
 
 Signing (``mavlink.signing``): outgoing messages are signed; unsigned or wrongly signed
 incoming messages are dropped (counted in ``status.rejected``), except RADIO_STATUS from
-telemetry radios, which cannot sign.
+telemetry radios, which cannot sign. The signature is verified before any stream state is
+touched, and the timestamps are kept across restarts (``payload.mavlink.signing``).
+
+Input guards: a message with a NaN or infinite field (or an ATTITUDE angle beyond 4 pi) is
+dropped at the door (``status.nonfinite``); ``udpin:`` talks only to the address the autopilot's
+heartbeats come from and, while the autopilot lives, ignores other senders (``status.foreign``);
+rejected and ignored input is logged at most once per source per 10 s, with counts.
+
+Reload: ``apply(new_cfg)`` applies the live keys (``LIVE_KEYS``) and says which.
 """
 
 import bisect
 import logging
 import math
-import os
 import select
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Deque, Dict, Optional, Set, Tuple
+from typing import Any, Deque, Dict, List, Optional, Tuple
 
 from payload.config import MavlinkConfig
 from payload.errors import ConfigError
 from payload.geometry import Attitude
-
-# Must be set before pymavlink is imported, or the MAVLink 1 dialect loads and messages with
-# ids > 255 (CAMERA_TRACKING_IMAGE_STATUS) cannot be sent.
-os.environ["MAVLINK20"] = "1"
-os.environ.setdefault("MAVLINK_DIALECT", "ardupilotmega")
-
-from pymavlink import mavutil  # noqa: E402
-
-if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":
-    # pymavlink was imported elsewhere before us without MAVLINK20: load the v2 dialect now.
-    mavutil.set_dialect(os.environ["MAVLINK_DIALECT"])
+from payload.mavlink.ratelog import RateLimitedLog
+from payload.mavlink.signing import SigningState, default_state_path
+from payload.mavlink.transport import SendDropped, UdpTransport, open_transport
+from payload.mavlink.transport import mavlink as _M
 
 log = logging.getLogger(__name__)
 
-_M = mavutil.mavlink
 _CMD_DETECTION = _M.MAV_CMD_USER_1
 _ATTITUDE_RETRY_S = 1.5
 _ATTITUDE_MAX_TRIES = 5
@@ -68,6 +67,15 @@ _TIMESYNC_SAMPLES = 8
 _ATTITUDE_BUFFER = 512
 _ATTITUDE_HOLD_NS = 100_000_000  # nearest sample is used this far outside the buffered span
 _CONNECTION_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:")
+_UINT64_MAX = (1 << 64) - 1
+_ANGLE_MAX = 4 * math.pi  # |roll|, |pitch|, |yaw| beyond this is not an attitude
+_SIGNING_LINK_ID = 0
+#: mavlink.* keys that ``MavlinkLink.apply`` changes on a running link; the others need a restart.
+LIVE_KEYS = (
+    "command_sysids", "heartbeat_hz", "autopilot_timeout_s", "attitude_rate_hz", "timesync",
+    "retry.initial_s", "retry.max_s",
+)
+_KEPT_KEYS = ("enabled", "connection", "baud", "system_id", "component_id", "component_type", "signing")
 
 
 def constant(name: str, default: Optional[int] = None) -> int:
@@ -134,14 +142,8 @@ class LinkStatus:
     rejected: int  # incoming messages dropped for a missing/bad signature
     commands_ignored: int  # COMMAND_LONGs from system ids not in command_sysids
     connect_failures: int  # failed attempts to open the connection (retried with back-off)
-
-
-class _TcpClosed(ConnectionError):
-    pass
-
-
-def _raise_closed(*_args):
-    raise _TcpClosed("connection closed by peer")
+    nonfinite: int = 0  # incoming messages dropped for a NaN/inf field (or an attitude angle beyond 4 pi)
+    foreign: int = 0  # udpin datagrams dropped for coming from another address than the autopilot's
 
 
 class MavlinkLink:
@@ -151,6 +153,10 @@ class MavlinkLink:
         _check_connection(cfg.connection)
         self.cfg = cfg
         self._key = load_signing_key(cfg.signing.key_file) if cfg.signing.enabled and cfg.signing.key_file else None
+        self._signing_state: Optional[SigningState] = None
+        if self._key is not None:
+            self._signing_state = SigningState(default_state_path(cfg.signing.key_file))
+            self._signing_state.load()
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
@@ -161,9 +167,16 @@ class MavlinkLink:
         self._rejected_before = 0  # from connections already closed
         self._commands_ignored = 0
         self._connect_failures = 0
+        self._nonfinite = 0
+        self._foreign_before = 0  # from connections already closed
+        self._foreign_seen = 0
         self._detection_enabled = True
-        self._ignored_logged: Set[Any] = set()
-        self._other_sysid_logged: Set[Any] = set()
+        # rejected / ignored input: counted always, logged at most once per source per interval
+        self._log_ignored = RateLimitedLog(log, "ignored commands")
+        self._log_other_ap = RateLimitedLog(log, "ignored autopilot heartbeats")
+        self._log_rejected = RateLimitedLog(log, "rejected packets")
+        self._log_foreign = RateLimitedLog(log, "ignored datagrams")
+        self._ratelogs = (self._log_ignored, self._log_other_ap, self._log_rejected, self._log_foreign)
         # autopilot
         self._ap_id: Optional[Tuple[int, int]] = None
         self._ap_alive = False
@@ -204,6 +217,8 @@ class MavlinkLink:
             self._thread = None
         with self._lock:
             self._close()
+            if self._signing_state is not None:
+                self._signing_state.save()
 
     def __enter__(self) -> "MavlinkLink":
         self.start()
@@ -223,8 +238,10 @@ class MavlinkLink:
         with self._lock:
             offset, synced = self._offset()
             rejected = self._rejected_before
+            foreign = self._foreign_before
             if self._conn is not None:
                 rejected += self._conn.mav.signing.reject_count
+                foreign += getattr(self._conn, "foreign", 0)
             return LinkStatus(
                 connected=self._conn is not None,
                 autopilot_seen=self._ap_alive,
@@ -238,6 +255,8 @@ class MavlinkLink:
                 rejected=rejected,
                 commands_ignored=self._commands_ignored,
                 connect_failures=self._connect_failures,
+                nonfinite=self._nonfinite,
+                foreign=foreign,
             )
 
     def publishing(self) -> Any:
@@ -246,6 +265,30 @@ class MavlinkLink:
         never in between, so nothing about the target follows the ACK. (The receive thread handles
         commands under the same lock.)"""
         return self._lock
+
+    def apply(self, cfg: MavlinkConfig) -> List[str]:
+        """Apply the live-changeable keys of a reloaded ``mavlink`` section (LIVE_KEYS) to the
+        running link; returns the dotted keys that changed and were applied (``mavlink.heartbeat_hz``...).
+        Keys that need a restart (connection, baud, ids, component_type, signing) keep their
+        running values here, whatever ``cfg`` says; ``outputs`` belongs to the publisher."""
+        old = self.cfg
+        changed = [k for k in LIVE_KEYS if _get(old, k) != _get(cfg, k)]
+        restart_only = {k: getattr(old, k) for k in _KEPT_KEYS}
+        with self._lock:
+            self.cfg = cfg.model_copy(update=restart_only)
+            if "heartbeat_hz" in changed:
+                self._next_hb_ns = 0  # the next one goes now, then at the new rate
+            if "attitude_rate_hz" in changed:
+                # ask again at the new rate (0: stop asking; the autopilot's own stream setting stays)
+                self._att_requests = 0
+                self._att_acked = False
+                self._att_next_request_ns = 0
+            if "timesync" in changed:
+                self._ts_pending.clear()
+                self._next_ts_ns = 0
+        if changed:
+            log.info("mavlink link applied: %s", ", ".join("%s=%s" % (k, _get(cfg, k)) for k in changed))
+        return ["mavlink." + k for k in changed]
 
     def send_message(self, msg_type: str, /, **fields: Any) -> bool:
         """Send one MAVLink message by name, e.g. ``send_message("DEBUG_VECT", name=b"TGT_BRG", ...)``.
@@ -261,7 +304,7 @@ class MavlinkLink:
             offset, _ = self._offset()
         if offset is None:
             return int(t_monotonic_ns) // 1000
-        return max(0, (int(t_monotonic_ns) + offset) // 1000)
+        return min(max(0, (int(t_monotonic_ns) + offset) // 1000), _UINT64_MAX)
 
     def attitude_at(self, t_monotonic_ns: int) -> Optional[Attitude]:
         """The vehicle attitude at a frame's capture time, interpolated from recent ATTITUDE messages.
@@ -294,11 +337,14 @@ class MavlinkLink:
     def _send(self, msg: Any) -> bool:
         with self._lock:
             conn = self._conn
-            if conn is None or self._broken or (getattr(conn, "udp_server", False) and not conn.clients):
+            if conn is None or self._broken or not conn.can_send():
                 self._dropped += 1
                 return False
             try:
                 conn.mav.send(msg)
+            except SendDropped:
+                self._dropped += 1
+                return False
             except (OSError, ConnectionError) as exc:
                 self._dropped += 1
                 self._broken = True
@@ -377,21 +423,19 @@ class MavlinkLink:
                     self._close()
 
     def _open(self) -> Any:
-        kwargs = dict(source_system=self.cfg.system_id, source_component=self.cfg.component_id)
-        if self.cfg.connection.startswith("tcp:"):
-            kwargs.update(retries=0, reconnect_delay=0)
-        conn = mavutil.mavlink_connection(self.cfg.connection, baud=self.cfg.baud, **kwargs)
-        if isinstance(conn, mavutil.mavtcp):
-            # pymavlink prints and spins on a closed TCP socket; turn that into a reconnect here.
-            conn.handle_eof = _raise_closed
-            conn.handle_disconnect = _raise_closed
+        conn = open_transport(self.cfg.connection, self.cfg.baud, self.cfg.system_id, self.cfg.component_id)
         if self._key is not None:
-            conn.setup_signing(self._key, sign_outgoing=True, allow_unsigned_callback=_allow_unsigned)
+            conn.setup_signing(self._key, _SIGNING_LINK_ID, _allow_unsigned)
+            self._signing_state.apply_to(conn.mav.signing)
         return conn
 
     def _close(self) -> None:
         if self._conn is not None:
             self._rejected_before += self._conn.mav.signing.reject_count
+            self._foreign_before += getattr(self._conn, "foreign", 0)
+            self._foreign_seen = 0
+            if self._signing_state is not None:
+                self._signing_state.update_from(self._conn.mav.signing)
             try:
                 self._conn.close()
             except OSError:
@@ -401,28 +445,38 @@ class MavlinkLink:
 
     def _step(self) -> None:
         conn = self._conn
-        fd = getattr(conn, "fd", None)
-        if fd is not None:
-            readable, _, _ = select.select([fd], [], [], 0.02)
-        else:
-            readable = [True]
-            time.sleep(0.005)
+        readable, _, _ = select.select([conn.fd], [], [], 0.02)
         if readable:
             with self._lock:
-                for _ in range(200):  # bounded so periodic work keeps its schedule under a flood
-                    msg = conn.recv_msg()
-                    if msg is None:
-                        break
-                    self._handle(msg)
+                # bounded per call (64 datagrams or 4 KiB), so periodic work keeps its schedule under a flood
+                for source, msg in conn.recv_msgs():
+                    self._handle(msg, source)
+                self._note_foreign(conn)
         with self._lock:
             self._periodic(time.monotonic_ns())
+
+    def _note_foreign(self, conn: Any) -> None:
+        foreign = getattr(conn, "foreign", 0)
+        if foreign > self._foreign_seen:
+            addr = conn.last_source
+            self._log_foreign(
+                addr, "ignoring datagrams from %s:%d: not the autopilot's address %s (%d so far)",
+                addr[0], addr[1], "%s:%d" % conn.peer if conn.peer else "-", foreign,
+            )
+            self._foreign_seen = foreign
 
     def _periodic(self, now_ns: int) -> None:
         if now_ns >= self._next_hb_ns:
             self._send_heartbeat()
             self._next_hb_ns = now_ns + int(1e9 / self.cfg.heartbeat_hz)
+        for ratelog in self._ratelogs:
+            ratelog.flush(now_ns)
+        if self._signing_state is not None and self._conn is not None:
+            self._signing_state.save(self._conn.mav.signing, force=False)
         if self._ap_alive and now_ns - self._ap_last_ns > self.cfg.autopilot_timeout_s * 1e9:
             self._ap_alive = False
+            if isinstance(self._conn, UdpTransport):
+                self._conn.exclusive = False  # hear whoever brings the autopilot back; send to the old peer till then
             log.warning(
                 "autopilot lost: sysid=%d compid=%d silent_s=%.1f (detection continues)",
                 self._ap_id[0], self._ap_id[1], (now_ns - self._ap_last_ns) / 1e9,
@@ -445,14 +499,25 @@ class MavlinkLink:
 
     # --- receiving -----------------------------------------------------------------------------
 
-    def _handle(self, msg: Any) -> None:
+    def _handle(self, msg: Any, source: Any = None) -> None:
         kind = msg.get_type()
         if kind == "BAD_DATA":
+            if msg.reason == "Invalid signature":
+                data = bytes(msg.get_msgbuf())
+                sysid = data[5] if len(data) > 5 and data[0] == _M.PROTOCOL_MARKER_V2 else -1
+                self._log_rejected(sysid, "rejected packet from sysid=%d: missing or bad signature", sysid)
+            return
+        if not _finite(msg):
+            self._nonfinite += 1
+            self._log_rejected(
+                ("nonfinite", msg.get_srcSystem()), "rejected %s from sysid=%d compid=%d: NaN, inf or out-of-range field",
+                kind, msg.get_srcSystem(), msg.get_srcComponent(),
+            )
             return
         now_ns = time.monotonic_ns()
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if kind == "HEARTBEAT":
-            self._on_heartbeat(msg, src, now_ns)
+            self._on_heartbeat(msg, src, now_ns, source)
         elif kind == "COMMAND_LONG":
             self._on_command(msg)
         elif src != self._ap_id:
@@ -481,20 +546,26 @@ class MavlinkLink:
             if not self._att_acked:
                 self._att_requests = _ATTITUDE_MAX_TRIES  # refused: do not insist
 
-    def _on_heartbeat(self, msg: Any, src: Tuple[int, int], now_ns: int) -> None:
+    def _on_heartbeat(self, msg: Any, src: Tuple[int, int], now_ns: int, source: Any) -> None:
         if msg.autopilot == _M.MAV_AUTOPILOT_INVALID:
             return  # a GCS, camera, companion computer...
         if src[0] != self.cfg.system_id:
-            if src[0] not in self._other_sysid_logged:
-                self._other_sysid_logged.add(src[0])
-                log.warning(
-                    "ignoring autopilot heartbeat: sysid=%d compid=%d, expected mavlink.system_id=%d",
-                    src[0], src[1], self.cfg.system_id,
-                )
+            self._log_other_ap(
+                src[0], "ignoring autopilot heartbeat: sysid=%d compid=%d, expected mavlink.system_id=%d",
+                src[0], src[1], self.cfg.system_id,
+            )
             return
         if self._ap_id is not None and src != self._ap_id and self._ap_alive:
             return  # a second autopilot component: stay with the first while it lives
         self._ap_last_ns = now_ns
+        conn = self._conn
+        if isinstance(conn, UdpTransport) and conn.listen and source is not None:
+            # udpin: the autopilot's (or its router's) address becomes our only destination and,
+            # while the autopilot lives, the only source we listen to
+            if conn.peer != source:
+                log.info("udpin: talking to %s:%d, the autopilot's address", source[0], source[1])
+            conn.peer = source
+            conn.exclusive = True
         if not self._ap_alive:
             first = self._ap_id is None
             self._ap_id = src
@@ -545,14 +616,14 @@ class MavlinkLink:
         src_sys = msg.get_srcSystem()
         if src_sys not in self.cfg.command_sysids:
             self._commands_ignored += 1
-            key = (src_sys, msg.command)
-            if key not in self._ignored_logged:
-                self._ignored_logged.add(key)
-                log.warning(
-                    "ignoring command from sysid=%d command=%d: not in mavlink.command_sysids=%s",
-                    src_sys, msg.command, list(self.cfg.command_sysids),
-                )
+            self._log_ignored(
+                src_sys, "ignoring command from sysid=%d command=%d: not in mavlink.command_sysids=%s",
+                src_sys, msg.command, list(self.cfg.command_sysids),
+            )
             return
+        if self._signing_state is not None and self._conn is not None:
+            # before acting on it: after a crash or restart this command cannot be replayed
+            self._signing_state.save(self._conn.mav.signing)
         if msg.command == _CMD_DETECTION:
             if msg.param1 in (0.0, 1.0):
                 self._detection_enabled = msg.param1 == 1.0
@@ -568,6 +639,27 @@ class MavlinkLink:
             self._ack(msg, _M.MAV_RESULT_UNSUPPORTED)
 
 
+def _get(cfg: Any, dotted: str) -> Any:
+    for part in dotted.split("."):
+        cfg = getattr(cfg, part)
+    return cfg
+
+
 def _allow_unsigned(_mav: Any, msg_id: int) -> bool:
     return msg_id == _M.MAVLINK_MSG_ID_RADIO_STATUS
+
+
+def _finite(msg: Any) -> bool:
+    """False when a float field of ``msg`` is NaN or infinite (or an ATTITUDE angle is beyond 4 pi)."""
+    for name in msg.get_fieldnames():
+        value = getattr(msg, name, None)
+        if isinstance(value, float):
+            if not math.isfinite(value):
+                return False
+        elif isinstance(value, list):
+            if not all(math.isfinite(v) for v in value if isinstance(v, float)):
+                return False
+    if msg.get_type() == "ATTITUDE":
+        return max(abs(msg.roll), abs(msg.pitch), abs(msg.yaw)) <= _ANGLE_MAX
+    return True
 
