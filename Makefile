@@ -31,7 +31,7 @@ $(VENV38)/.runtime: pyproject.toml $(CONSTRAINTS38)
 	$(PYTHON38) -c "import sys; assert sys.version_info[:2] == (3, 8), sys.version"
 	$(PYTHON38) -m venv $(VENV38)
 	$(PY38) -m pip install -q -c $(CONSTRAINTS38) --upgrade pip setuptools wheel
-	$(PY38) -m pip install -q -c $(CONSTRAINTS38) --no-build-isolation -e . pytest pytest-timeout onnx pyserial hypothesis
+	$(PY38) -m pip install -q -c $(CONSTRAINTS38) --no-build-isolation -e . pytest pytest-timeout onnx hypothesis
 	touch $@
 
 system-deps:
