@@ -41,6 +41,7 @@ class Report:
     service_rc: Optional[int]
     service_died: bool
     elapsed_s: float
+    soak_cpu_s: float = 0.0
 
     def resources(self):
         """(start, end) medians of three samples: the first after the warm-up, the last three."""
@@ -128,6 +129,7 @@ def print_report(r: Report) -> None:
         print("  open fds             %g -> %g" % (start["fds"], end["fds"]))
         print("  threads              %g -> %g" % (start["threads"], end["threads"]))
     print("  tracebacks in log    %d" % b.tracebacks)
+    print("  the soak's own CPU   %.1f s (%.1f %% of one core)" % (r.soak_cpu_s, 100.0 * r.soak_cpu_s / max(r.elapsed_s, 1e-6)))
     failures = r.failures()
     print("  result               %s" % ("PASS" if not failures else "FAIL"))
     for line in failures:

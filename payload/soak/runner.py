@@ -266,6 +266,7 @@ class Soak:
             self.service = self._start_service()
             self._wait(lambda: self.books.rows > 0, READY_TIMEOUT_S, "the service's first frame", self.service)
             self.t0 = time.monotonic()
+            self.cpu0 = sum(os.times()[:2])  # this process only: the soak's own load
             print("soak: service pid %d processing; %.1f min, a fault every %.0f s (%s)"
                   % (self.service.pid, p.duration_s / 60.0, p.every_s, ", ".join(self.kinds)), flush=True)
             self._schedule()
@@ -484,6 +485,7 @@ class Soak:
             samples=self.samples, t0=getattr(self, "t0", None), service_rc=rc,
             service_died=getattr(self, "service_died", True),
             elapsed_s=(self.books.last_capture_t - self.t0) if hasattr(self, "t0") else 0.0,
+            soak_cpu_s=sum(os.times()[:2]) - getattr(self, "cpu0", 0.0),
         )
 
 
