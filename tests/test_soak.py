@@ -31,6 +31,7 @@ def test_short_soak_injects_every_fault_and_passes(tmp_path):
     assert "result               PASS" in report
     frames = int(re.search(r"frames processed\s+(\d+)", report).group(1))
     assert frames > 300  # 30 s at 30 fps, minus start-up
+    assert int(re.search(r"corrupt frames skipped (\d+)", report).group(1)) >= 1
     survived = dict(re.findall(r"(\w+) (\d+/\d+)", re.search(r"faults survived\s+(.*)", report).group(1)))
     assert set(survived) == set(KINDS)
     for kind, ratio in survived.items():

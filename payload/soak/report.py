@@ -101,8 +101,9 @@ def print_report(r: Report) -> None:
     print("")
     print("glad-payload soak: %.1f min, a fault every %.0f s; outputs in %s" % (p.duration_s / 60.0, p.every_s, r.out))
     frames = b.frames_logged if b.frames_logged is not None else b.rows
-    print("  frames processed     %d (%.1f fps; decisions rows %d; per-frame faults logged %s)"
-          % (frames, b.rows / max(r.elapsed_s, 1e-6), b.rows, "-" if b.faults_logged is None else b.faults_logged))
+    print("  frames processed     %d (%.1f fps; decisions rows %d; corrupt frames skipped %d; per-frame faults %s)"
+          % (frames, b.rows / max(r.elapsed_s, 1e-6), b.rows, b.unreadable,
+             "-" if b.faults_logged is None else b.faults_logged))
     parts = []
     for kind in r.kinds:
         mine = [f for f in r.faults if f.kind == kind and f.injected]

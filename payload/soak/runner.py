@@ -60,7 +60,7 @@ class Plan:
             raise PayloadError("soak --every %r: expected at least 3 seconds between faults" % every_s)
         return cls(duration_s=duration, warmup_s=min(60.0, duration / 3.0), every_s=every,
                    sample_s=min(5.0, max(1.0, duration / 30.0)), down_s=min(5.0, 0.4 * every),
-                   burst_s=min(2.0, 0.25 * every), burst_rate=2000.0)
+                   burst_s=min(5.0, 0.25 * every), burst_rate=2000.0)
 
 
 @dataclass
@@ -92,6 +92,7 @@ class Books:
         self.last_in_t = -math.inf  # newest message the autopilot received from us
         self.frames_logged: Optional[int] = None
         self.faults_logged: Optional[int] = None
+        self.unreadable = 0  # frames the service skipped as undecodable (its summary's unreadable=)
         self.link_up_t = -math.inf  # when a summary line last said link=up
         self.tracebacks = 0
         self.log_lines: List[Tuple[float, str]] = []  # recent lines about reloads
@@ -173,6 +174,7 @@ class Books:
         if "frames" in fields and "fps" in fields:  # a summary line
             self.frames_logged = _int(fields["frames"], self.frames_logged)
             self.faults_logged = _int(fields.get("faults", ""), self.faults_logged)
+            self.unreadable = _int(fields.get("unreadable", ""), self.unreadable)
             if fields.get("link", "").startswith("up"):
                 self.link_up_t = now
         if "reload" in line.lower():
@@ -324,8 +326,10 @@ class Soak:
         for line in self.record_tail.read():
             try:
                 self.books.on_record(json.loads(line))
-            except ValueError:
-                pass  # a line cut by a kill
+            except ValueError:  # a line cut by a kill, perhaps continued by the next autopilot's START
+                start = line.find('{"type": "START"')
+                if start > 0:
+                    self.books.on_record(json.loads(line[start:]))
         for values in csv.reader(decisions):
             if self._decision_fields is None or values[:1] == ["frame"]:
                 self._decision_fields = values
@@ -371,6 +375,7 @@ class Soak:
             burst.start()
             self._at(now + self.plan.burst_s + 0.1, lambda: self._ended(fault, burst))
         elif fault.kind == "corrupt_frames":
+            fault.detail["unreadable"] = self.books.unreadable
             middle = len(self.frames) // 2
             originals = corrupt(self.frames[middle:middle + 3])
             self._at(now + self.hold_s, lambda: (restore(originals), self._ended(fault)))
@@ -432,11 +437,16 @@ class Soak:
                 missing.append("no summary line with link=up after the burst")
             if b.last_in_t <= fault.t_end:
                 missing.append("the autopilot heard nothing from the payload after the burst")
+        elif fault.kind == "corrupt_frames":
+            if b.unreadable <= fault.detail["unreadable"]:
+                missing.append("no summary line counting the corrupt frames as unreadable")
         elif fault.kind.startswith("reload"):
-            want = ("appl",) if fault.kind == "reload_good" else ("reject", "keep")
             lines = [line.lower() for t, line in b.log_lines if t >= fault.t_start]
-            if not any(any(w in line for w in want) and not (fault.kind == "reload_good" and "reject" in line)
-                       for line in lines):
+            if fault.kind == "reload_good":
+                said = any("reload: applied" in line for line in lines)
+            else:
+                said = any("reload" in line and ("reject" in line or "keep" in line) for line in lines)
+            if not said:
                 missing.append("no log line saying the reload was %s"
                                % ("applied" if fault.kind == "reload_good" else "rejected"))
         if not missing:
