@@ -22,12 +22,13 @@ def test_short_soak_injects_every_fault_and_passes(tmp_path):
     out = tmp_path / "soak"
     env = dict(os.environ, PYTHONPATH=REPO + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.run(
-        [sys.executable, "-m", "payload", "soak", "--minutes", "0.5", "--every", "4", "--clip-frames", "30",
+        [sys.executable, "-m", "payload", "soak", "--minutes", "0.5", "--every", "4", "--clip-frames", "16",
          "--size", "640", "360", "--out", str(out)],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=240,
     )
     report = proc.stdout
-    assert proc.returncode == 0, report + proc.stderr[-3000:]
+    log_path = out / "service.log"
+    assert proc.returncode == 0, report + proc.stderr[-3000:] + (log_path.read_text()[-3000:] if log_path.exists() else "")
     assert "result               PASS" in report
     frames = int(re.search(r"frames processed\s+(\d+)", report).group(1))
     assert frames > 300  # 30 s at 30 fps, minus start-up
@@ -46,9 +47,9 @@ def test_short_soak_injects_every_fault_and_passes(tmp_path):
         start, end = map(int, re.search(what + r"\s+(\d+) -> (\d+)", report).groups())
         assert 0 < end <= start
     # The service saw each fault: the broken config refused, the good one applied, the restored frames read.
-    log = (out / "service.log").read_text()
+    log = log_path.read_text()
     assert "reload rejected" in log and "reload: applied" in log
-    assert (out / "frames" / "frame_00029.jpg").stat().st_size > 1000  # corrupted frames restored
+    assert min(p.stat().st_size for p in (out / "frames").iterdir()) > 1000  # corrupted frames restored
 
 
 def _report(tmp_path, samples, restarts=(), faults=(), died=False, tracebacks=0):

@@ -8,7 +8,8 @@ soak's folder. On a schedule, one fault at a time, in turn:
 - ``autopilot_restart``: the autopilot is killed (SIGKILL) and started again after a pause;
 - ``garbage``: a burst of random UDP datagrams at the payload's MAVLink socket;
 - ``corrupt_frames``: three frames of the folder become a zero-byte, a truncated and a random
-  file for one pass through the clip, then are restored (``--no-corrupt-frames`` leaves them);
+  file for two passes through the clip, then are restored (``--no-corrupt-frames`` leaves them
+  out); survived once the service's summary counts one as unreadable and frames go on;
 - ``reload_good`` / ``reload_bad``: SIGHUP with a changed valid config, and with a broken one
   (syntax error, bad value, unknown key, not UTF-8, in turn), the good file put back after.
 

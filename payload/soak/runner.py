@@ -215,10 +215,13 @@ class Soak:
         self.frames = render_folder(os.path.join(self.out, "frames"), a.seed, a.size[0], a.size[1], a.fps,
                                     a.clip_frames)
         pass_s = len(self.frames) / a.fps
-        self.hold_s = pass_s + 1.0  # corrupt frames stay for one whole pass through the clip
+        # Corrupt frames stay for two passes: a paced source steps over frames that went stale
+        # while the service was busy, and the fault only counts once one was read.
+        self.hold_s = 2.0 * pass_s + 0.5
         if "corrupt_frames" in self.kinds and self.hold_s > self.plan.every_s - 1.0:
-            raise PayloadError("soak: one pass through the clip takes %.1f s, longer than the %.0f s between "
-                               "faults: lower --clip-frames or raise --every" % (pass_s, self.plan.every_s))
+            raise PayloadError("soak: corrupt frames stay %.1f s (two passes through the clip), longer than the "
+                               "%.0f s between faults allow: lower --clip-frames or raise --every"
+                               % (self.hold_s, self.plan.every_s))
         base = load_config(a.config)
         self.config_path = os.path.join(self.out, "config.yaml")
         self.good = [self._config_text(base, 0.0), self._config_text(base, 0.01)]
@@ -376,8 +379,8 @@ class Soak:
             self._at(now + self.plan.burst_s + 0.1, lambda: self._ended(fault, burst))
         elif fault.kind == "corrupt_frames":
             fault.detail["unreadable"] = self.books.unreadable
-            middle = len(self.frames) // 2
-            originals = corrupt(self.frames[middle:middle + 3])
+            n = len(self.frames)  # three frames far apart: one stall does not step over all
+            originals = corrupt([self.frames[n // 4], self.frames[n // 2], self.frames[3 * n // 4]])
             self._at(now + self.hold_s, lambda: (restore(originals), self._ended(fault)))
         elif fault.kind == "reload_good":
             self._good_variant = 1 - self._good_variant
