@@ -67,7 +67,7 @@ class Plan:
 class Fault:
     kind: str
     t_start: float  # soak clock (time.monotonic())
-    deadline: float  # checks must hold by then (the next fault's start)
+    deadline: float  # checks must hold by then (the next fault's start, or 2 s after t_end if later)
     t_end: Optional[float] = None  # the injection is over (autopilot back, frames restored, ...)
     injected: bool = False
     done: bool = False
@@ -285,7 +285,7 @@ class Soak:
     def _schedule(self) -> None:
         p = self.plan
         t, i = p.every_s, 0
-        tail = max(p.every_s, 5.0)  # the last fault is checked before the end
+        tail = max(p.every_s, 8.0)  # the last fault ends and is checked before the end (an autopilot takes seconds to start)
         while t + tail <= p.duration_s:
             kind = self.kinds[i % len(self.kinds)]
             fault = Fault(kind, self.t0 + t, deadline=self.t0 + min(t + p.every_s, p.duration_s))
@@ -320,6 +320,9 @@ class Soak:
                 self.samples.append(s)
             self.next_sample = now + self.plan.sample_s
         for fault in self.faults:
+            restart = fault.detail.get("restart")
+            if fault.t_end is None and restart is not None and restart.start_t is not None:
+                fault.t_end = restart.start_t  # over once the new autopilot listens (its start takes seconds)
             if not fault.done and fault.t_end is not None:
                 self._check(fault, now)
 
@@ -404,7 +407,6 @@ class Soak:
         self.autopilot = self._start_autopilot()
         self.books.restarts.append(Restart(pid=self.autopilot.pid, kill_t=fault.t_start))
         fault.detail["restart"] = self.books.restarts[-1]
-        fault.t_end = time.monotonic()
 
     def _bad_config(self) -> Tuple[str, bytes]:
         """A broken config, a different way each time."""
@@ -454,7 +456,7 @@ class Soak:
                                % ("applied" if fault.kind == "reload_good" else "rejected"))
         if not missing:
             fault.done, fault.survived = True, True
-        elif now >= fault.deadline or self.service.poll() is not None:
+        elif now >= max(fault.deadline, fault.t_end + 2.0) or self.service.poll() is not None:
             fault.done, fault.why = True, "; ".join(missing)
 
     # --- the end ------------------------------------------------------------------------------
