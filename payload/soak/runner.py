@@ -203,6 +203,18 @@ class Soak:
 
     def prepare(self) -> None:
         a = self.args
+        if a.clip_frames < 2 or not a.fps > 0 or min(a.size) < 64:
+            raise PayloadError("soak: --clip-frames %d, --fps %g, --size %dx%d: expected at least 2 frames, a positive "
+                               "rate and 64x64 or more" % (a.clip_frames, a.fps, a.size[0], a.size[1]))
+        pass_s = (2 * a.clip_frames - 2) / a.fps  # the folder plays forwards then backwards
+        # Corrupt frames stay for two passes: a paced source steps over frames that went stale
+        # while the service was busy, and the fault only counts once one was read.
+        self.hold_s = 2.0 * pass_s + 0.5
+        if "corrupt_frames" in self.kinds and self.hold_s > self.plan.every_s - 1.0:
+            raise PayloadError("soak: corrupt frames stay %.1f s (two passes through the clip), longer than the "
+                               "%.0f s between faults allow: lower --clip-frames or raise --every"
+                               % (self.hold_s, self.plan.every_s))
+        base = load_config(a.config)  # a broken base config fails before anything is rendered
         for name in ("frames", "outputs", "autopilot.jsonl", "service.log", "autopilot.log", "config.yaml"):
             path = os.path.join(self.out, name)
             if os.path.isdir(path):
@@ -214,15 +226,6 @@ class Soak:
               % (a.clip_frames, a.size[0], a.size[1], a.seed, self.out), flush=True)
         self.frames = render_folder(os.path.join(self.out, "frames"), a.seed, a.size[0], a.size[1], a.fps,
                                     a.clip_frames)
-        pass_s = len(self.frames) / a.fps
-        # Corrupt frames stay for two passes: a paced source steps over frames that went stale
-        # while the service was busy, and the fault only counts once one was read.
-        self.hold_s = 2.0 * pass_s + 0.5
-        if "corrupt_frames" in self.kinds and self.hold_s > self.plan.every_s - 1.0:
-            raise PayloadError("soak: corrupt frames stay %.1f s (two passes through the clip), longer than the "
-                               "%.0f s between faults allow: lower --clip-frames or raise --every"
-                               % (self.hold_s, self.plan.every_s))
-        base = load_config(a.config)
         self.config_path = os.path.join(self.out, "config.yaml")
         self.good = [self._config_text(base, 0.0), self._config_text(base, 0.01)]
         _write(self.config_path, self.good[0].encode("utf-8"))
