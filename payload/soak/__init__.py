@@ -36,6 +36,7 @@ def add_arguments(p) -> None:
     p.add_argument("--no-corrupt-frames", action="store_true", help="leave out the corrupt_frames fault")
     p.add_argument("--fps", type=float, default=30.0, help="camera rate the folder is paced at")
     p.add_argument("--size", nargs=2, type=int, default=(960, 540), metavar=("W", "H"), help="clip frame size")
-    p.add_argument("--clip-frames", type=int, default=90,
-                   help="frames rendered (the folder plays them forwards then backwards)")
+    p.add_argument("--clip-frames", type=int, default=None,
+                   help="frames rendered, played forwards then backwards (default 90, fewer when faults come "
+                        "so often that corrupt frames kept two passes would overlap the next)")
     p.add_argument("--seed", type=int, default=2, help="synthetic scene (seed 2: the drone is in view throughout)")

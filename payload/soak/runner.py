@@ -203,6 +203,8 @@ class Soak:
 
     def prepare(self) -> None:
         a = self.args
+        if a.clip_frames is None:  # longest clip (up to 90 frames) whose corrupt_frames hold fits between faults
+            a.clip_frames = max(2, min(90, int(a.fps * (self.plan.every_s - 1.5) / 4.0) + 1))
         if a.clip_frames < 2 or not a.fps > 0 or min(a.size) < 64:
             raise PayloadError("soak: --clip-frames %d, --fps %g, --size %dx%d: expected at least 2 frames, a positive "
                                "rate and 64x64 or more" % (a.clip_frames, a.fps, a.size[0], a.size[1]))
