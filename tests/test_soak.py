@@ -10,8 +10,9 @@ import sys
 import pytest
 
 from payload.soak import KINDS
+from payload.soak.books import Books
 from payload.soak.report import Report, Restart
-from payload.soak.runner import Books, Fault, Plan
+from payload.soak.runner import Fault, Plan
 from payload.soak.watch import ProcSample, TailLines, sample, udp_ports
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
