@@ -67,6 +67,12 @@ def _demo(args) -> int:
     return main_demo(args)
 
 
+def _soak(args) -> int:
+    from payload.soak.runner import main_soak
+
+    return main_soak(args)
+
+
 def _bench(args) -> int:
     from payload.bench.cli import main_bench
 
@@ -144,6 +150,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no per-row progress lines")
     _add_synthetic_args(p, "ablation:")
     p.set_defaults(func=_bench)
+
+    p = sub.add_parser("soak", help="run the service N minutes against the fake autopilot with faults; report")
+    from payload.soak import add_arguments as add_soak_arguments
+
+    add_soak_arguments(p)
+    p.set_defaults(func=_soak)
 
     p = sub.add_parser("synth", help="render a synthetic air-to-air clip: MP4 + per-frame labels CSV")
     p.add_argument("out", help="output folder")
