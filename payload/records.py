@@ -210,7 +210,7 @@ class CsvLog:
     def _open(self) -> None:
         if os.path.exists(self.path) and not self._has_header():
             self._rotate_files()
-        size = os.path.getsize(self.path) if os.path.exists(self.path) else 0
+        size = os.path.getsize(self.path) if os.path.isfile(self.path) else 0
         cut_short = False
         if size:
             with open(self.path, "rb") as fb:
@@ -233,6 +233,8 @@ class CsvLog:
         self._csv = csv.writer(fh, lineterminator="\n")
 
     def _has_header(self) -> bool:
+        if not os.path.isfile(self.path):
+            return True  # not a regular file (a device, a pipe): written as it is, never rotated
         try:
             with open(self.path, newline="", encoding="utf-8", errors="replace") as fh:
                 first = fh.readline(4096)

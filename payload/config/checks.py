@@ -63,15 +63,17 @@ def writable_dir_problem(path: str) -> Optional[str]:
     if not os.path.isdir(existing):
         return "%r: %s is not a folder" % (path, existing)
     created: List[str] = []
+    doing = "cannot create the folder"
     try:
         for folder in reversed(missing):
             os.mkdir(folder)
             created.append(folder)
+        doing = "cannot write files there"
         fd, probe = tempfile.mkstemp(dir=target, prefix=".glad-payload-check-")
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        return "%r: cannot write files there: %s" % (path, exc.strerror or exc)
+        return "%r: %s: %s" % (path, doing, exc.strerror or exc)
     finally:
         for folder in reversed(created):
             try:

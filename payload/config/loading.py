@@ -115,7 +115,11 @@ def _yaml_problem(exc: yaml.YAMLError) -> Tuple[Optional[int], str]:
     mark = getattr(exc, "problem_mark", None)
     problem = getattr(exc, "problem", None)
     if isinstance(exc, yaml.reader.ReaderError):  # a character YAML does not allow
-        return None, "character %r at position %d is not allowed in YAML" % (exc.character, exc.position)
+        char = exc.character if isinstance(exc.character, int) else ord(exc.character[:1] or "\0")
+        return None, "character U+%04X at position %d is not allowed in YAML" % (char, exc.position)
+    context = getattr(exc, "context", None)
+    if problem and context:
+        problem = "%s, %s" % (context, problem)
     text = problem or (str(exc).splitlines() or [type(exc).__name__])[0]
     return (mark.line + 1 if mark is not None else None), text
 
@@ -138,8 +142,9 @@ def read_yaml(path: str) -> Tuple[Any, Dict[Tuple, int]]:
     if not text.strip():
         raise ConfigError(["%s: the file is empty: expected sections such as capture:, detector:, mavlink: "
                            "(configs/default.yaml lists every key)" % path])
-    loader = _Loader(text)
+    loader = None
     try:
+        loader = _Loader(text)
         root = loader.get_single_node()
         if root is None:
             raise ConfigError(["%s: the file holds only comments: expected sections such as capture:, detector:, "
@@ -158,7 +163,8 @@ def read_yaml(path: str) -> Tuple[Any, Dict[Tuple, int]]:
     except ValueError as exc:  # a constructor's own conversion (e.g. a float or date out of range)
         raise ConfigError([_one_line("%s: not valid YAML: %s" % (path, exc))]) from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 # --- error messages -------------------------------------------------------------------------
