@@ -296,7 +296,7 @@ class Service:
 
     def _apply(self, new: Config) -> List[str]:
         """Hand each running component its section; the union of the keys they applied."""
-        applied = list(self.glad.update_config(new.detector) or []) if self.glad is not None else []
+        applied = self.glad.update_config(new.detector) if self.glad is not None else []
         applied += self.bearings.apply(new.camera)
         applied += self._apply_logging(new.logging)
         if self.publisher is not None:

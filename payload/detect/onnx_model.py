@@ -117,7 +117,9 @@ class OnnxModel:
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = int(threads)
-        opts.log_severity_level = 3
+        # FATAL only: ORT's errors reach us as exceptions, which the service reports once a summary
+        # interval; at ERROR it would also print each one itself (a line a frame when every frame fails).
+        opts.log_severity_level = 4
         # Idle intra-op threads must sleep, not spin: on 2-6 cores a spinning ORT worker takes a
         # core from the OpenCV work (decode, optical flow) that follows each inference.
         # Measured on 2 cores (docs/results.md): 146 -> 230 FPS, p99 latency 23 -> 8 ms, 640x512.

@@ -18,8 +18,8 @@ Per processed frame the service calls ``TargetPublisher.publish(target, bearing,
 
 ``max_rate_hz`` caps target messages per second (0 = every processed frame). While detection
 is disabled by command (``link.detection_enabled`` False) nothing is sent. No message goes out
-with a value that is not finite (the IDLE status's NaN "no target" fields aside): such a
-message is withheld and counted (``stats.not_finite``).
+with a value that is not finite, except the NaNs MAVLink defines as "unknown" (the radius, the
+IDLE status's fields): such a message is withheld and counted (``stats.not_finite``).
 """
 
 import logging
