@@ -265,7 +265,7 @@ class Service:
             return False
         self.notifier.reloading()
         try:
-            return self._reload_from(load_run_config(self.config_path))
+            return self._reload_from(load_run_config(self.config_path, running=self.cfg))
         except ConfigError as exc:
             for line in exc.problems:
                 log.error("reload rejected, keeping the running config: %s", line)
@@ -291,7 +291,7 @@ class Service:
         not_applied = sorted(pending + refused)
         if not_applied:
             log.warning("reload: these changes need a restart and are not applied yet: %s", ", ".join(not_applied))
-        log.info("reload: applied %s changed=%s", self.config_path, ",".join(sorted(applied)) or "nothing")
+        log.info("reload: applied %s changed=%s", self.config_path, ",".join(sorted(applied & set(changed))) or "nothing")
         return True
 
     def _apply(self, new: Config) -> List[str]:

@@ -6,7 +6,7 @@ import time
 import pytest
 import yaml
 
-from payload.config import Config, config_with, load_config, restart_required
+from payload.config import Config, config_with, load_config, parse_config, restart_required
 from payload.errors import ConfigError
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -272,3 +272,19 @@ def test_outputs_folder_check_leaves_nothing_behind(tmp_path):
 
     assert writable_dir_problem(str(tmp_path / "a" / "b" / "c")) is None
     assert os.listdir(str(tmp_path)) == []
+
+
+def test_reload_checks_the_files_of_changed_keys_only(tmp_path):
+    from payload.config import load_run_config
+
+    path = tmp_path / "payload.yaml"
+    path.write_text("outputs:\n  directory: /dev/full\n")
+    running = parse_config({"outputs": {"directory": "/dev/full"}})  # e.g. a folder that filled up since
+    path.write_text("outputs:\n  directory: /dev/full\ndetector:\n  switcher:\n    max_local_misses: 7\n")
+    assert load_run_config(str(path), running=running).detector.switcher.max_local_misses == 7
+    path.write_text("outputs:\n  directory: /dev/full\ncapture:\n  source: file\n  path: /nonexistent.mp4\n")
+    with pytest.raises(ConfigError) as info:
+        load_run_config(str(path), running=running)
+    assert info.value.problems == ["%s:5: capture.path: /nonexistent.mp4: no such file" % path]
+    with pytest.raises(ConfigError):  # at start everything is checked
+        load_run_config(str(path))

@@ -12,6 +12,7 @@ import tempfile
 from typing import List, Optional, Tuple
 
 from payload.config.loading import parse_config, problem_line, read_yaml
+from payload.config.reload import changed_keys
 from payload.config.schema import Config
 from payload.errors import ConfigError
 
@@ -117,13 +118,19 @@ def file_problems(cfg: Config) -> List[Tuple[Tuple, str]]:
     return out
 
 
-def load_run_config(path: Optional[str]) -> Config:
-    """``load_config`` plus the file checks: the config ``run`` starts (or reloads) with."""
+def load_run_config(path: Optional[str], running: Optional[Config] = None) -> Config:
+    """``load_config`` plus the file checks: the config ``run`` starts with. For a reload pass the
+    ``running`` config: then only the files of keys that changed are checked (an outputs folder
+    that filled up since the start must not block a reload of the thresholds)."""
     if path is None:
         return Config()
     data, lines = read_yaml(path)
     cfg = parse_config(data, source=path, lines=lines)
-    problems = [problem_line(path, lines, loc, message) for loc, message in file_problems(cfg)]
+    found = file_problems(cfg)
+    if running is not None:
+        changed = set(changed_keys(running, cfg))
+        found = [(loc, message) for loc, message in found if ".".join(loc) in changed]
+    problems = [problem_line(path, lines, loc, message) for loc, message in found]
     if problems:
         raise ConfigError(problems)
     return cfg
