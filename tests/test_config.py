@@ -251,6 +251,10 @@ def _parity_cases(tmp_path):
         ("capture:\n  source: folder\n  path: %s\n" % missing, [":3: capture.path: %s: no such folder" % missing]),
         ("detector:\n  local:\n    appearance:\n      model: %s\n" % (missing / "m.onnx"),
          [":4: detector.local.appearance.model: %s: no such file" % (missing / "m.onnx")]),
+        ("", [": the file is empty: expected sections such as capture:, detector:, mavlink: "
+              "(configs/default.yaml lists every key)"]),
+        (BOMB, [": holds more than 20000 values once its aliases (*name) are expanded (at most 20000): "
+                "write the values out"]),
     ]
 
 
@@ -264,7 +268,7 @@ def test_check_config_refuses_what_run_refuses(tmp_path):
         assert (check.returncode, check.stderr.strip().splitlines()) == (2, lines), text
         assert (run.returncode, run.stderr.strip().splitlines()) == (2, lines), text
     assert not os.path.exists("/proc/x")
-    assert sorted(os.listdir(str(tmp_path))) == sorted(["a_file", "short.key"] + ["case%d.yaml" % i for i in range(10)])
+    assert sorted(os.listdir(str(tmp_path))) == sorted(["a_file", "short.key"] + ["case%d.yaml" % i for i in range(12)])
 
 
 def test_outputs_folder_check_leaves_nothing_behind(tmp_path):

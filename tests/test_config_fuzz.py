@@ -15,7 +15,7 @@ from hypothesis import strategies as st  # noqa: E402
 from payload.config import Config, flat_config, load_config, parse_config  # noqa: E402
 from payload.errors import ConfigError  # noqa: E402
 
-FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+FUZZ = settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                         HealthCheck.too_slow])
 
 # the config's own key names, so that random mappings reach deep into the schema

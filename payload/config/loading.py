@@ -27,7 +27,9 @@ MAX_NODES = 20_000
 MAX_DIGITS = 100
 
 
-class _Constructor(yaml.constructor.SafeConstructor):
+class _Loader(yaml.SafeLoader):
+    """yaml.SafeLoader with bounded integers."""
+
     def construct_yaml_int(self, node):
         digits = sum(c.isdigit() for c in str(node.value))
         if digits > MAX_DIGITS:
@@ -36,20 +38,7 @@ class _Constructor(yaml.constructor.SafeConstructor):
         return super().construct_yaml_int(node)
 
 
-_Constructor.add_constructor("tag:yaml.org,2002:int", _Constructor.construct_yaml_int)
-
-
-class _Loader(yaml.reader.Reader, yaml.scanner.Scanner, yaml.parser.Parser, yaml.composer.Composer,
-              _Constructor, yaml.resolver.Resolver):
-    """yaml.SafeLoader with bounded integers (built the way PyYAML builds SafeLoader)."""
-
-    def __init__(self, stream):
-        yaml.reader.Reader.__init__(self, stream)
-        yaml.scanner.Scanner.__init__(self)
-        yaml.parser.Parser.__init__(self)
-        yaml.composer.Composer.__init__(self)
-        _Constructor.__init__(self)
-        yaml.resolver.Resolver.__init__(self)
+_Loader.add_constructor("tag:yaml.org,2002:int", _Loader.construct_yaml_int)
 
 
 def _children(node: yaml.Node) -> List[yaml.Node]:
