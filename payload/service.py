@@ -203,7 +203,12 @@ class Service:
     def _bearing(self, frame: Frame, result: GladResult) -> Optional[Bearing]:
         if result.target is None:
             return None
-        attitude = self.link.attitude_at(frame.t_capture_ns) if self.link is not None else None
+        attitude = None
+        if self.link is not None:
+            try:
+                attitude = self.link.attitude_at(frame.t_capture_ns)
+            except (ValueError, ArithmeticError):  # interpolating a non-finite yaw: as no attitude
+                self.bearings.attitude_not_finite += 1
         return self.bearings.bearing(result.target, frame.size_wh, attitude)
 
     def _watchdog(self) -> None:

@@ -361,8 +361,8 @@ def test_decisions_csv_appends_across_restarts_and_rotates_by_size(tmp_path):
 
 class NanAutopilot(threading.Thread):
     """A MAVLink autopilot on UDP (pymavlink): heartbeats, and ATTITUDE at 30 Hz that is finite in
-    phase 0, has roll NaN in phase 1 and pitch +inf in phase 2 (the test sets ``phase``). Records
-    the target messages it receives: (monotonic time, type, fields)."""
+    phase 0, has roll NaN in phase 1, pitch +inf in phase 2 and yaw -inf in phase 3 (the test sets
+    ``phase``). Records the target messages it receives: (monotonic time, type, fields)."""
 
     def __init__(self, port):
         super().__init__(daemon=True)
@@ -388,8 +388,9 @@ class NanAutopilot(threading.Thread):
                 if now >= next_att:
                     roll = float("nan") if self.phase == 1 else 0.1
                     pitch = float("inf") if self.phase == 2 else 0.05
+                    yaw = -float("inf") if self.phase == 3 else 0.3
                     boot_ms = int((now - self.t0) * 1000)
-                    self.conn.mav.send(m.MAVLink_attitude_message(boot_ms, roll, pitch, 0.3, 0.0, 0.0, 0.0))
+                    self.conn.mav.send(m.MAVLink_attitude_message(boot_ms, roll, pitch, yaw, 0.0, 0.0, 0.0))
                     next_att = now + 1 / 30.0
             msg = self.conn.recv_match(blocking=True, timeout=0.01)
             if msg is not None and msg.get_type() in ("DEBUG_VECT", "LANDING_TARGET", "CAMERA_TRACKING_IMAGE_STATUS"):
@@ -418,6 +419,9 @@ def test_nan_and_inf_attitude_never_reach_a_sent_bearing(tmp_path):
         t_inf = time.monotonic()
         autopilot.phase = 2
         time.sleep(4.0)
+        t_yaw = time.monotonic()
+        autopilot.phase = 3
+        time.sleep(4.0)
         t_end = time.monotonic()
         assert proc.poll() is None
         assert stop(proc) == 0
@@ -434,8 +438,8 @@ def test_nan_and_inf_attitude_never_reach_a_sent_bearing(tmp_path):
         assert math.isfinite(f["angle_x"]) and math.isfinite(f["angle_y"]), f
     # no level bearing without a finite attitude (0.5 s for the frames in flight at the switch)
     assert autopilot.of_type("DEBUG_VECT", t_nan + 0.5, t_end) == []
-    # frames and body-frame messages went on through the NaN and the inf phase
-    for start_t, end_t in ((t_nan + 0.5, t_inf), (t_inf + 0.5, t_end)):
+    # frames and body-frame messages went on through the NaN and the inf phases
+    for start_t, end_t in ((t_nan + 0.5, t_inf), (t_inf + 0.5, t_yaw), (t_yaw + 0.5, t_end)):
         assert autopilot.of_type("CAMERA_TRACKING_IMAGE_STATUS", start_t, end_t)
 
 
