@@ -30,9 +30,9 @@ def _add_synthetic_args(p: argparse.ArgumentParser, what: str) -> None:
 
 
 def _check_config(args) -> int:
-    from payload.config import load_config
+    from payload.config import load_run_config
 
-    load_config(args.file)
+    load_run_config(args.file)  # what run loads: the values and the files they name
     print("%s: OK" % args.file)
     return 0
 

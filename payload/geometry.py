@@ -17,12 +17,12 @@ put pixel *centres* on integers, so half a pixel is subtracted before undistorti
 
 import math
 from dataclasses import dataclass
-from typing import Optional, Sequence, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
 
-from payload.config import CameraConfig, MountConfig
+from payload.config import CameraConfig, MountConfig, section_changes
 from payload.types import Bearing, Target
 
 #: Fixed axis swap camera (x right, y down, z forward) -> body FRD for a camera looking
@@ -41,6 +41,10 @@ class Attitude:
     roll_rad: float
     pitch_rad: float
     yaw_rad: float
+
+    @property
+    def finite(self) -> bool:
+        return all(math.isfinite(a) for a in (self.roll_rad, self.pitch_rad, self.yaw_rad))
 
 
 def rotation_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
@@ -145,14 +149,14 @@ def bearing_for(
     """The bearing to the target's box centre.
 
     ``mount`` is the camera -> body rotation from ``mount_rotation``/``mount_from_config``;
-    ``attitude`` is the vehicle attitude at the frame's capture time (None: level angles None).
-    Confidence is the target's score.
+    ``attitude`` is the vehicle attitude at the frame's capture time (None, or not finite: level
+    angles None). Confidence is the target's score.
     """
     u, v = target.center
     ray_body = np.asarray(mount, np.float64) @ camera.pixel_to_ray_cam(u, v)
     az_body, el_body = az_el(ray_body)
     az_level = el_level = None
-    if attitude is not None:
+    if attitude is not None and attitude.finite:
         az_level, el_level = az_el(body_to_level(attitude) @ ray_body)
     return Bearing(
         t_capture_ns=int(target.t_capture_ns),
@@ -162,3 +166,45 @@ def bearing_for(
         el_level_rad=el_level,
         confidence=float(target.score),
     )
+
+
+def _finite(*values: Optional[float]) -> bool:
+    return all(v is None or math.isfinite(v) for v in values)
+
+
+class BearingModel:
+    """The ``camera`` section at work: target -> bearing for frames of any size, at the attitude
+    of capture time. A bearing is never handed on with a value that is not finite: a non-finite
+    attitude (a broken or hostile ATTITUDE message) gives body-frame angles only, a non-finite
+    body bearing gives none; both are counted."""
+
+    def __init__(self, cfg: CameraConfig) -> None:
+        self.cfg = cfg
+        self.mount = mount_from_config(cfg.mount)
+        self._camera: Optional[CameraModel] = None
+        self.attitude_not_finite = 0  # attitudes dropped: level angles withheld
+        self.bearing_not_finite = 0  # bearings withheld
+
+    def apply(self, cfg: CameraConfig) -> List[str]:
+        """Take a reloaded ``camera`` section from the next frame on; returns the keys applied."""
+        keys = section_changes(self.cfg, cfg, "camera")
+        self.cfg = cfg
+        self.mount = mount_from_config(cfg.mount)
+        self._camera = None  # rebuilt for the next frame's size
+        return keys
+
+    def camera(self, image_wh: Tuple[int, int]) -> CameraModel:
+        if self._camera is None or self._camera.image_wh != tuple(image_wh):
+            self._camera = CameraModel.from_config(self.cfg, image_wh)
+        return self._camera
+
+    def bearing(self, target: Target, image_wh: Tuple[int, int], attitude: Optional[Attitude]) -> Optional[Bearing]:
+        if attitude is not None and not attitude.finite:
+            self.attitude_not_finite += 1
+            attitude = None
+        bearing = bearing_for(target, self.camera(image_wh), self.mount, attitude)
+        if not _finite(bearing.az_body_rad, bearing.el_body_rad, bearing.az_level_rad, bearing.el_level_rad,
+                       bearing.confidence):
+            self.bearing_not_finite += 1
+            return None
+        return bearing

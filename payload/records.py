@@ -1,15 +1,22 @@
-"""The detections CSV written by ``detect`` and the service and read by ``eval``.
+"""The CSV records: detections (written by ``detect`` and the service, read by ``eval``) and the
+service's decisions.
 
-One row per detection: ``frame,x,y,w,h,score,module`` with ``frame`` 0-based, ``x,y`` the
-top-left corner in full-frame pixels (0-based), ``w,h`` in pixels and ``module`` one of
-GAD, GMD, LAD, LMD. A frame without detections has no row.
+Detections: one row per detection, ``frame,x,y,w,h,score,module`` with ``frame`` 0-based,
+``x,y`` the top-left corner in full-frame pixels (0-based), ``w,h`` in pixels and ``module``
+one of GAD, GMD, LAD, LMD. A frame without detections has no row.
+
+Decisions (service only): one row per processed frame, what the switcher decided and what was sent.
+
+The service writes both through ``CsvLog``: appended to across restarts, rotated by size, and
+never stopping detection when the disk is full or the folder is gone (reported once).
 """
 
 import csv
 import logging
 import math
 import os
-from typing import Dict, List, Optional, TextIO
+import time
+from typing import Any, Dict, List, Optional, Sequence, TextIO
 
 import numpy as np
 
@@ -19,6 +26,12 @@ from payload.types import MODULES, Detections
 log = logging.getLogger(__name__)
 
 HEADER = ("frame", "x", "y", "w", "h", "score", "module")
+
+
+def detection_rows(frame_index: int, dets: Detections) -> List[tuple]:
+    """The detections CSV rows of one frame."""
+    return [(int(frame_index), "%.2f" % x, "%.2f" % y, "%.2f" % w, "%.2f" % h, "%.4f" % score, str(module))
+            for (x, y, w, h), score, module in zip(dets.xywh, dets.score, dets.module)]
 
 
 class DetectionsCsvWriter:
@@ -44,11 +57,7 @@ class DetectionsCsvWriter:
             raise ValueError("frame_index must be >= 0, got %d" % frame_index)
         if not len(dets):
             return
-        xywh = dets.xywh
-        for (x, y, w, h), score, module in zip(xywh, dets.score, dets.module):
-            self._csv.writerow(
-                (int(frame_index), "%.2f" % x, "%.2f" % y, "%.2f" % w, "%.2f" % h, "%.4f" % score, str(module))
-            )
+        self._csv.writerows(detection_rows(frame_index, dets))
         self.rows += len(dets)
         self._file.flush()
 
@@ -120,3 +129,149 @@ def read_detections_csv(path: str) -> Dict[int, Detections]:
         out[frame] = Detections.from_xywh(xywh, [r[4] for r in rows[frame]], [r[5] for r in rows[frame]])
     log.debug("read detections path=%s frames=%d rows=%d", path, len(out), sum(len(d) for d in out.values()))
     return out
+
+
+DECISION_FIELDS = ("frame", "t_capture_ns", "t_wall_ns", "mode", "state", "module", "score", "x", "y", "w", "h",
+                   "region_x", "region_y", "region_w", "region_h", "az_body_rad", "el_body_rad", "az_level_rad",
+                   "el_level_rad", "messages_sent")
+
+
+def decision_row(frame: Any, result: Any, bearing: Any, sent: int) -> tuple:
+    """The decisions CSV row of one processed frame (a Frame, its GladResult, its Bearing or None)."""
+    t = result.target
+    box = [""] * 4 if t is None else ["%.1f" % t.xyxy[0], "%.1f" % t.xyxy[1],
+                                      "%.1f" % (t.xyxy[2] - t.xyxy[0]), "%.1f" % (t.xyxy[3] - t.xyxy[1])]
+    r = result.region_xyxy
+    region = [""] * 4 if r is None else [int(r[0]), int(r[1]), int(r[2] - r[0]), int(r[3] - r[1])]
+    angles = [""] * 4
+    if bearing is not None:
+        angles = ["%.5f" % v if v is not None else "" for v in
+                  (bearing.az_body_rad, bearing.el_body_rad, bearing.az_level_rad, bearing.el_level_rad)]
+    state = "searching" if t is None else ("detected" if t.measured else "coasting")
+    return (frame.index, frame.t_capture_ns, frame.t_wall_ns, result.mode, state,
+            "" if t is None else t.module, "" if t is None else "%.3f" % t.score, *box, *region, *angles, int(sent))
+
+
+class CsvLog:
+    """A CSV the service appends rows to for as long as it runs, and across restarts.
+
+    - An existing file is appended to (its header is written once; a file with another header,
+      from an older version, is rotated away first).
+    - At ``max_bytes`` the file becomes ``PATH.1`` (``PATH.1`` -> ``PATH.2`` ..., ``keep`` old
+      files kept, older ones deleted) and a new one starts (0 = never rotate).
+    - A write never raises: when the disk is full or the folder is gone the failure is logged
+      once, rows are dropped (counted in ``lost``) and the file is reopened every ``retry_s``.
+    """
+
+    def __init__(self, path: str, header: Sequence[str], max_bytes: int = 0, keep: int = 0,
+                 retry_s: float = 10.0) -> None:
+        self.path = path
+        self.header = list(header)
+        self.max_bytes = int(max_bytes)
+        self.keep = int(keep)
+        self.retry_s = retry_s
+        self.rows = 0  # rows written
+        self.lost = 0  # rows dropped because the file could not be written
+        self.rotations = 0
+        self._fh: Optional[TextIO] = None
+        self._csv: Any = None
+        self._retry_at = 0.0
+        self._failing = False
+
+    def write_rows(self, rows: Sequence[Sequence[Any]]) -> bool:
+        """Append rows (flushed); False when they were dropped."""
+        if not rows:
+            return True
+        try:
+            if self._fh is None:
+                if time.monotonic() < self._retry_at:
+                    self.lost += len(rows)
+                    return False
+                self._open()
+            self._csv.writerows(rows)
+            self._fh.flush()
+            if self.max_bytes and os.fstat(self._fh.fileno()).st_size >= self.max_bytes:
+                self._rotate()
+        except OSError as exc:
+            self.lost += len(rows)
+            self._fail(exc)
+            return False
+        self.rows += len(rows)
+        if self._failing:
+            self._failing = False
+            log.info("outputs: writing %s again (%d rows lost meanwhile)", self.path, self.lost)
+        return True
+
+    def close(self) -> None:
+        self._close_quietly()
+
+    # --- inside ---------------------------------------------------------------------------------
+
+    def _open(self) -> None:
+        if os.path.exists(self.path) and not self._has_header():
+            self._rotate_files()
+        size = os.path.getsize(self.path) if os.path.isfile(self.path) else 0
+        cut_short = False
+        if size:
+            with open(self.path, "rb") as fb:
+                fb.seek(-1, os.SEEK_END)
+                cut_short = fb.read(1) != b"\n"  # a row cut short by a crash or a full disk
+        fh = open(self.path, "a", newline="", encoding="utf-8")
+        try:
+            if not size:
+                csv.writer(fh, lineterminator="\n").writerow(self.header)
+            elif cut_short:
+                fh.write("\n")
+            fh.flush()
+        except BaseException:
+            try:
+                fh.close()
+            except OSError:
+                pass
+            raise
+        self._fh = fh
+        self._csv = csv.writer(fh, lineterminator="\n")
+
+    def _has_header(self) -> bool:
+        if not os.path.isfile(self.path):
+            return True  # not a regular file (a device, a pipe): written as it is, never rotated
+        try:
+            with open(self.path, newline="", encoding="utf-8", errors="replace") as fh:
+                first = fh.readline(4096)
+        except OSError:
+            return True  # unreadable: let the append report it
+        return not first or next(csv.reader([first]), []) == self.header
+
+    def _rotate(self) -> None:
+        self._close_quietly(raise_errors=True)
+        self._rotate_files()
+        self.rotations += 1
+        self._open()
+
+    def _rotate_files(self) -> None:
+        if self.keep <= 0:
+            os.remove(self.path)
+            return
+        for i in range(self.keep - 1, 0, -1):
+            older = "%s.%d" % (self.path, i)
+            if os.path.exists(older):
+                os.replace(older, "%s.%d" % (self.path, i + 1))
+        os.replace(self.path, self.path + ".1")
+
+    def _fail(self, exc: OSError) -> None:
+        self._close_quietly()
+        self._retry_at = time.monotonic() + self.retry_s
+        if not self._failing:
+            self._failing = True
+            log.error("outputs: cannot write %s: %s; detection goes on, rows are dropped until writing works "
+                      "again (retried every %.0f s)", self.path, exc.strerror or exc, self.retry_s)
+
+    def _close_quietly(self, raise_errors: bool = False) -> None:
+        fh, self._fh, self._csv = self._fh, None, None
+        if fh is None:
+            return
+        try:
+            fh.close()  # flushes; the file is closed even when that fails
+        except OSError:
+            if raise_errors:
+                raise

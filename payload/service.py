@@ -3,12 +3,15 @@
 source -> GLAD -> bearing -> MAVLink, always on the newest frame. The loop never blocks on
 the camera or the link: a lost camera is reconnected by its source (read() returns None
 meanwhile), a lost autopilot by the link thread. systemd hears READY=1 once the models are
-loaded and the first frame arrived, WATCHDOG=1 only while frames are being processed, and a
-STATUS= line every summary interval. SIGHUP reloads the config (an invalid file keeps the
-running one); SIGTERM/SIGINT finish the current frame, flush the logs and close the link.
+loaded and the first frame arrived, WATCHDOG=1 only after frames that went all the way through
+(a stalled camera, a detector failing on every frame or a hung reload stop the pings), and a
+STATUS= line every summary interval. SIGHUP reloads the config: each component applies its own
+section and returns the keys it applied, restart-only keys are refused in one line, an invalid
+file keeps the running config. SIGTERM/SIGINT finish the current frame, flush the records and
+close the link. Records (detections.csv, decisions.csv) that cannot be written are reported
+once and detection goes on.
 """
 
-import csv
 import logging
 import os
 import signal
@@ -19,11 +22,20 @@ from typing import Callable, List, Optional
 
 from payload.capture import open_source
 from payload.capture.base import EndOfStream, FrameSource
-from payload.config import Config, changed_keys, config_with, flat_config, load_config, restart_required
+from payload.config import (
+    Config,
+    LoggingConfig,
+    changed_keys,
+    config_with,
+    flat_config,
+    is_restart_key,
+    load_run_config,
+    section_changes,
+)
 from payload.detect.pipeline import Glad, GladResult
 from payload.errors import ConfigError
-from payload.geometry import CameraModel, bearing_for, mount_from_config
-from payload.records import DetectionsCsvWriter
+from payload.geometry import BearingModel
+from payload.records import DECISION_FIELDS, HEADER, CsvLog, decision_row, detection_rows
 from payload.sdnotify import Notifier
 from payload.types import Bearing, Frame
 
@@ -40,62 +52,32 @@ class LoopStats:
     interval_start_s: float = 0.0
 
 
-class DecisionsCsvWriter:
-    """One row per processed frame: what the switcher decided and what was sent."""
-
-    FIELDS = ["frame", "t_capture_ns", "t_wall_ns", "mode", "state", "module", "score", "x", "y", "w", "h",
-              "region_x", "region_y", "region_w", "region_h", "az_body_rad", "el_body_rad", "az_level_rad",
-              "el_level_rad", "messages_sent"]
-
-    def __init__(self, path: str) -> None:
-        self._fh = open(path, "w", newline="", encoding="utf-8")
-        self._csv = csv.writer(self._fh)
-        self._csv.writerow(self.FIELDS)
-
-    def write(self, frame: Frame, result: GladResult, bearing: Optional[Bearing], sent: int) -> None:
-        t = result.target
-        box = [""] * 4 if t is None else ["%.1f" % t.xyxy[0], "%.1f" % t.xyxy[1],
-                                          "%.1f" % (t.xyxy[2] - t.xyxy[0]), "%.1f" % (t.xyxy[3] - t.xyxy[1])]
-        r = result.region_xyxy
-        region = [""] * 4 if r is None else [int(r[0]), int(r[1]), int(r[2] - r[0]), int(r[3] - r[1])]
-        angles = [""] * 4
-        if bearing is not None:
-            angles = ["%.5f" % v if v is not None else "" for v in
-                      (bearing.az_body_rad, bearing.el_body_rad, bearing.az_level_rad, bearing.el_level_rad)]
-        state = "searching" if t is None else ("detected" if t.measured else "coasting")
-        self._csv.writerow([frame.index, frame.t_capture_ns, frame.t_wall_ns, result.mode, state,
-                            "" if t is None else t.module, "" if t is None else "%.3f" % t.score,
-                            *box, *region, *angles, int(sent)])
-        self._fh.flush()
-
-    def close(self) -> None:
-        self._fh.close()
-
-
 class Service:
     """The payload: one instance per process. ``run()`` returns the process exit code."""
 
     def __init__(self, cfg: Config, config_path: Optional[str] = None, max_frames: int = 0,
-                 on_result: Optional[Callable[[Frame, GladResult], None]] = None) -> None:
+                 on_result: Optional[Callable[[Frame, GladResult], None]] = None, verbose: bool = False) -> None:
         self.cfg = cfg
         self.config_path = config_path
         self.max_frames = max_frames
         self.on_result = on_result  # the demo draws frames through this
+        self.verbose = verbose  # -v: DEBUG logging whatever logging.level says
         self.notifier = Notifier()
         self.stats = LoopStats()
         self._stop = threading.Event()
         self._reload = threading.Event()
         self._ready_sent = False
-        self._camera: Optional[CameraModel] = None
-        self._mount = None
+        self.bearings = BearingModel(cfg.camera)
         self.link = None
         self.publisher = None
         self.source: Optional[FrameSource] = None
         self.glad: Optional[Glad] = None
-        self._detections_csv: Optional[DetectionsCsvWriter] = None
-        self._decisions_csv: Optional[DecisionsCsvWriter] = None
+        self._detections_csv: Optional[CsvLog] = None
+        self._decisions_csv: Optional[CsvLog] = None
         self._last_watchdog_s = 0.0
         self._last_result: Optional[GladResult] = None
+        self._faults_reported = 0
+        self._fault_report_s = 0.0
 
     # --- signals --------------------------------------------------------------------------
 
@@ -106,9 +88,6 @@ class Service:
 
     def stop(self) -> None:
         self._stop.set()
-
-    def request_reload(self) -> None:
-        self._reload.set()
 
     # --- start-up and shutdown ------------------------------------------------------------
 
@@ -123,10 +102,16 @@ class Service:
             self.link = MavlinkLink(cfg.mavlink)
             self.link.start()
             self.publisher = TargetPublisher(self.link, cfg.mavlink.outputs)
-        if cfg.outputs.directory:
-            os.makedirs(cfg.outputs.directory, exist_ok=True)
-            self._detections_csv = DetectionsCsvWriter(os.path.join(cfg.outputs.directory, "detections.csv"))
-            self._decisions_csv = DecisionsCsvWriter(os.path.join(cfg.outputs.directory, "decisions.csv"))
+        out = cfg.outputs
+        if out.directory:
+            try:
+                os.makedirs(out.directory, exist_ok=True)
+            except OSError:
+                pass  # the first write reports it, once; detection goes on without records
+            self._detections_csv = CsvLog(os.path.join(out.directory, "detections.csv"), HEADER,
+                                          out.max_file_bytes, out.keep_files)
+            self._decisions_csv = CsvLog(os.path.join(out.directory, "decisions.csv"), DECISION_FIELDS,
+                                         out.max_file_bytes, out.keep_files)
         self.notifier.status("opening %s" % cfg.capture.source)
         self.source = open_source(cfg.capture)
         self.source.open()
@@ -173,10 +158,10 @@ class Service:
             self.notifier.ready()
             self._ready_sent = True
             log.info("ready first_frame=%d size=%dx%d", frame.index, *frame.size_wh)
-        self._watchdog()
         if self.link is not None and not self.link.detection_enabled:
             self.stats.skipped += 1
             self.stats.interval_frames += 1
+            self._watchdog()  # paused by command, and alive
             return
         try:
             result = self.glad.process(frame)
@@ -185,28 +170,46 @@ class Service:
             if self.publisher is not None:
                 sent = self.publisher.publish(result.target, bearing, frame.size_wh)
             if self._detections_csv is not None:
-                self._detections_csv.write(frame.index, result.detections)
+                self._detections_csv.write_rows(detection_rows(frame.index, result.detections))
             if self._decisions_csv is not None:
-                self._decisions_csv.write(frame, result, bearing, sent)
+                self._decisions_csv.write_rows([decision_row(frame, result, bearing, sent)])
             if self.on_result is not None:
                 self.on_result(frame, result)
-        except Exception:  # one bad frame must not take the payload down; count and go on
-            self.stats.faults += 1
-            log.exception("frame=%d fault (total faults=%d)", frame.index, self.stats.faults)
+        except Exception as exc:  # one bad frame must not take the payload down; count and go on
+            self._fault(frame, exc)
             return
         self._last_result = result
         self.stats.frames += 1
         self.stats.interval_frames += 1
         self.stats.hits += bool(result.target is not None and result.target.measured)
+        self._watchdog()  # only a frame that went all the way through says we are alive
+
+    def _fault(self, frame: Frame, exc: Exception) -> None:
+        """Count a failed frame; the first is logged with its traceback, then one line per summary interval."""
+        self.stats.faults += 1
+        now = time.monotonic()
+        if self.stats.faults == 1:
+            log.exception("frame=%d fault (total faults=1); later faults are summed up, one line per %.0f s",
+                          frame.index, self.cfg.logging.summary_interval_s)
+        elif now - self._fault_report_s >= self.cfg.logging.summary_interval_s:
+            log.error("frame faults=%d since the last report (total %d), last: frame=%d %s: %s",
+                      self.stats.faults - self._faults_reported, self.stats.faults, frame.index,
+                      type(exc).__name__, " ".join(str(exc).split())[:200])
+        else:
+            return
+        self._faults_reported = self.stats.faults
+        self._fault_report_s = now
 
     def _bearing(self, frame: Frame, result: GladResult) -> Optional[Bearing]:
         if result.target is None:
             return None
-        if self._camera is None or self._camera.image_wh != frame.size_wh:
-            self._camera = CameraModel.from_config(self.cfg.camera, frame.size_wh)
-            self._mount = mount_from_config(self.cfg.camera.mount)
-        attitude = self.link.attitude_at(frame.t_capture_ns) if self.link is not None else None
-        return bearing_for(result.target, self._camera, self._mount, attitude)
+        attitude = None
+        if self.link is not None:
+            try:
+                attitude = self.link.attitude_at(frame.t_capture_ns)
+            except (ValueError, ArithmeticError):  # interpolating a non-finite yaw: as no attitude
+                self.bearings.attitude_not_finite += 1
+        return self.bearings.bearing(result.target, frame.size_wh, attitude)
 
     def _watchdog(self) -> None:
         interval = self.notifier.watchdog_interval_s
@@ -245,6 +248,12 @@ class Service:
         line = ("fps=%.1f frames=%d drops=%d reconnects=%d state=%s target=%s link=%s faults=%d"
                 % (fps, self.stats.frames, src.dropped if src else 0, src.reconnects if src else 0,
                    self._state(), target, link, self.stats.faults))
+        # counters of things survived, shown once they happen
+        extra = [("unreadable", src.unreadable if src else 0),
+                 ("attitude_not_finite", self.bearings.attitude_not_finite),
+                 ("bearing_not_finite", self.bearings.bearing_not_finite),
+                 ("rows_lost", sum(c.lost for c in (self._detections_csv, self._decisions_csv) if c is not None))]
+        line += "".join(" %s=%d" % (name, n) for name, n in extra if n)
         log.info("%s%s", "final " if final else "", line)
         self.notifier.status(line)
         self.stats.interval_frames = 0
@@ -253,39 +262,66 @@ class Service:
     # --- reload ---------------------------------------------------------------------------
 
     def reload(self) -> bool:
-        """Re-read the config file; apply what can change live. Returns True if applied."""
+        """Re-read the config file; each component applies its own section and says which keys it
+        applied. A changed key that none applied (restart-only) keeps its running value and is
+        named in one line. An invalid file keeps the whole running config. Returns True if read."""
         if not self.config_path:
             log.warning("reload: no config file (running on built-in defaults); nothing to reload")
             return False
         self.notifier.reloading()
         try:
-            new = load_config(self.config_path)
+            return self._reload_from(load_run_config(self.config_path, running=self.cfg))
         except ConfigError as exc:
             for line in exc.problems:
                 log.error("reload rejected, keeping the running config: %s", line)
-            self.notifier.ready()
             return False
-        pending: List[str] = restart_required(self.cfg, new)
-        live = [k for k in changed_keys(self.cfg, new) if k not in pending]
-        if pending:
-            log.warning("reload: these changes need a restart and are not applied yet: %s", ", ".join(pending))
-        self.glad.update_config(new.detector)
-        if self.publisher is not None:
-            self.publisher.cfg = new.mavlink.outputs
-        logging.getLogger().setLevel(new.logging.level)
-        self._camera = None  # camera intrinsics/mount may have changed
-        # Restart-only keys keep their running values until a restart, so a later reload reports them again.
+        except Exception as exc:  # a reload must never take the payload down
+            log.error("reload failed, keeping the running config: %s: %s", type(exc).__name__,
+                      " ".join(str(exc).split())[:300])
+            return False
+        finally:
+            self.notifier.ready()
+
+    def _reload_from(self, new: Config) -> bool:
         running = flat_config(self.cfg)
-        self.cfg = config_with(new, **{key: running[key] for key in pending})
-        log.info("reload: applied %s changed=%s", self.config_path, ",".join(live) or "nothing")
-        self.notifier.ready()
+        changed = changed_keys(self.cfg, new)
+        pending = [k for k in changed if is_restart_key(k)]
+        if pending:  # restart-only keys keep their running values, so a later reload reports them again
+            new = config_with(new, **{k: running[k] for k in pending})
+        applied = set(self._apply(new))
+        refused = [k for k in changed if k not in pending and k not in applied]
+        if refused:  # changed, and no component took it live
+            new = config_with(new, **{k: running[k] for k in refused})
+        self.cfg = new
+        not_applied = sorted(pending + refused)
+        if not_applied:
+            log.warning("reload: these changes need a restart and are not applied yet: %s", ", ".join(not_applied))
+        log.info("reload: applied %s changed=%s", self.config_path, ",".join(sorted(applied & set(changed))) or "nothing")
         return True
+
+    def _apply(self, new: Config) -> List[str]:
+        """Hand each running component its section; the union of the keys they applied."""
+        applied = self.glad.update_config(new.detector) if self.glad is not None else []
+        applied += self.bearings.apply(new.camera)
+        applied += self._apply_logging(new.logging)
+        if self.publisher is not None:
+            applied += self.publisher.apply(new.mavlink.outputs)
+        link_apply = getattr(self.link, "apply", None)
+        if link_apply is not None:
+            applied += link_apply(new.mavlink)
+        return applied
+
+    def _apply_logging(self, cfg: LoggingConfig) -> List[str]:
+        """The logging section: the root level (unless -v) and the summary interval (read from self.cfg)."""
+        if not self.verbose:
+            logging.getLogger().setLevel(cfg.level)
+        return section_changes(self.cfg.logging, cfg, "logging")
 
 
 def main_run(args) -> int:
-    cfg = load_config(args.config)
-    logging.getLogger().setLevel(cfg.logging.level if not getattr(args, "verbose", False) else logging.DEBUG)
-    service = Service(cfg, config_path=args.config, max_frames=args.frames)
+    cfg = load_run_config(args.config)
+    verbose = bool(getattr(args, "verbose", False))
+    logging.getLogger().setLevel(logging.DEBUG if verbose else cfg.logging.level)
+    service = Service(cfg, config_path=args.config, max_frames=args.frames, verbose=verbose)
     service.install_signal_handlers()
     return service.run()
-

@@ -21,8 +21,9 @@ def _save(graph, path):
     return str(path)
 
 
-def bright_spot_detector(path, input_name="images", channels=3):
-    x = helper.make_tensor_value_info(input_name, TensorProto.FLOAT, ["N", channels, "H", "W"])
+def bright_spot_detector(path, input_name="images", channels=3, hw=("H", "W")):
+    """``hw``: the input's spatial dims, dynamic by default; (100, 100) makes a fixed-size model."""
+    x = helper.make_tensor_value_info(input_name, TensorProto.FLOAT, ["N", channels, *hw])
     y = helper.make_tensor_value_info("maps", TensorProto.FLOAT, ["N", 5, "h", "w"])
     consts = [
         numpy_helper.from_array(np.array(0.0, np.float32), "zero"),
@@ -42,6 +43,31 @@ def bright_spot_detector(path, input_name="images", channels=3):
         helper.make_node("Concat", ["peak", "offset", "offset", "size", "size"], ["maps"], axis=1),
     ]
     return _save(helper.make_graph(nodes, "bright_spot", [x], [y], consts), path)
+
+
+def failing_detector(path):
+    """The detector contract, but inference fails inside ONNX Runtime on any input that is not all
+    black: a Gather index grows with the brightest pixel and runs out of its 10-element table.
+    The all-zero warm-up and output probe pass, so the model loads; every real frame faults."""
+    x = helper.make_tensor_value_info("images", TensorProto.FLOAT, ["N", 3, "H", "W"])
+    y = helper.make_tensor_value_info("maps", TensorProto.FLOAT, ["N", 5, "h", "w"])
+    consts = [
+        numpy_helper.from_array(np.arange(10, dtype=np.float32), "table"),
+        numpy_helper.from_array(np.array(1000.0, np.float32), "gain"),
+        numpy_helper.from_array(np.array(0.0, np.float32), "zero"),
+    ]
+    nodes = [
+        helper.make_node("AveragePool", ["images"], ["pooled"], kernel_shape=[4, 4], strides=[4, 4]),
+        helper.make_node("ReduceMax", ["images"], ["brightest"], keepdims=0),
+        helper.make_node("Mul", ["brightest", "gain"], ["scaled"]),
+        helper.make_node("Cast", ["scaled"], ["index"], to=TensorProto.INT64),
+        helper.make_node("Gather", ["table", "index"], ["picked"]),
+        helper.make_node("Mul", ["picked", "zero"], ["nothing"]),
+        helper.make_node("ReduceMean", ["pooled"], ["grey"], axes=[1], keepdims=1),
+        helper.make_node("Add", ["grey", "nothing"], ["score"]),
+        helper.make_node("Concat", ["score", "score", "score", "score", "score"], ["maps"], axis=1),
+    ]
+    return _save(helper.make_graph(nodes, "failing", [x], [y], consts), path)
 
 
 def brightness_classifier(path):

@@ -451,3 +451,16 @@ def test_unpaced_synthetic_frames_follow_the_scene_timeline():
     assert [f.index for f in frames] == [0, 1, 2, 3]
     assert np.diff([f.t_capture_ns for f in frames]).tolist() == [40_000_000] * 3
     assert np.diff([f.t_wall_ns for f in frames]).tolist() == [40_000_000] * 3
+
+
+@pytest.mark.parametrize("pace", [False, True])
+def test_corrupt_and_empty_images_are_skipped_and_counted(tmp_path, pace):
+    for i in range(8):
+        cv2.imwrite(str(tmp_path / ("%02d.jpg" % i)), np.full((8, 8, 3), 30 * i, np.uint8))
+    (tmp_path / "02.jpg").write_bytes(b"\xff\xd8\xff\xe0 not a jpeg")
+    (tmp_path / "05.jpg").write_bytes(b"")
+    src = ImageFolderSource(str(tmp_path), fps=200.0, pace=pace)
+    with src:
+        got = list(src)
+    assert [f.index for f in got] == [0, 1, 3, 4, 6, 7]  # each keeps its place (and time) on the timeline
+    assert src.stats.unreadable == 2 and src.stats.frames == 6

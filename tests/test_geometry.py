@@ -8,6 +8,7 @@ import pytest
 from payload.config import CameraConfig, MountConfig
 from payload.geometry import (
     Attitude,
+    BearingModel,
     CameraModel,
     az_el,
     bearing_for,
@@ -148,3 +149,28 @@ def test_distortion_changes_the_ray():
     az_plain, _ = az_el(mount_rotation() @ plain.pixel_to_ray_cam(1900.0, 540.0))
     az_dist, _ = az_el(mount_rotation() @ dist.pixel_to_ray_cam(1900.0, 540.0))
     assert az_dist > az_plain + math.radians(2.0)
+
+
+@pytest.mark.parametrize("attitude", [Attitude(math.nan, 0.0, 0.0), Attitude(0.0, math.inf, 0.0),
+                                      Attitude(0.0, 0.0, -math.inf)])
+def test_non_finite_attitude_gives_body_angles_only(attitude):
+    model = BearingModel(CameraConfig())
+    bearing = model.bearing(target_at(700, 200), (1280, 720), attitude)
+    assert math.isfinite(bearing.az_body_rad) and math.isfinite(bearing.el_body_rad)
+    assert bearing.az_level_rad is None and bearing.el_level_rad is None
+    assert model.attitude_not_finite == 1 and model.bearing_not_finite == 0
+
+
+def test_non_finite_target_gives_no_bearing():
+    model = BearingModel(CameraConfig())
+    assert model.bearing(target_at(math.nan, 200), (1280, 720), Attitude(0.1, 0.0, 0.0)) is None
+    assert model.bearing_not_finite == 1
+
+
+def test_bearing_model_applies_a_reloaded_camera_section():
+    model = BearingModel(CameraConfig())
+    before = model.bearing(target_at(1000, 360), (1280, 720), None).az_body_rad
+    new = CameraConfig(hfov_deg=40.0, mount=MountConfig(yaw_deg=10.0))
+    assert model.apply(new) == ["camera.hfov_deg", "camera.mount.yaw_deg"]
+    after = model.bearing(target_at(1000, 360), (1280, 720), None).az_body_rad
+    assert after != before and model.camera((1280, 720)).hfov_rad == pytest.approx(math.radians(40.0))

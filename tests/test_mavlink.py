@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from payload.config import MavlinkConfig
+from payload.config import MavlinkConfig, parse_config
 from payload.errors import ConfigError
 from payload.geometry import CameraModel, bearing_for, mount_rotation
 from payload.mavlink.link import MavlinkLink, load_signing_key
@@ -188,8 +188,11 @@ def test_bad_key_file_is_one_line_config_error(tmp_path):
 
 @pytest.mark.parametrize("connection", ["udpout:127.0.0.1", "udpin:127.0.0.1:99999", "bluetooth:x", "tcp::14550"])
 def test_bad_connection_string_is_config_error(connection):
+    # the schema refuses it (so check-config does too), and the link would
     with pytest.raises(ConfigError, match="mavlink.connection"):
-        MavlinkLink(link_cfg(connection))
+        parse_config({"mavlink": {"connection": connection}})
+    with pytest.raises(ConfigError, match="mavlink.connection"):
+        MavlinkLink(link_cfg("udpout:127.0.0.1:9").model_copy(update={"connection": connection}))
 
 
 def test_sends_without_peer_are_dropped_not_raised():

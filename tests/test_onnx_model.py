@@ -142,3 +142,13 @@ def test_runtime_never_imports_torch():
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["False", "True"]
+
+
+def test_input_fixed_to_another_size_is_one_line(tmp_path):
+    path = bright_spot_detector(tmp_path / "fixed.onnx", hw=(100, 100))
+    with pytest.raises(ModelError) as err:
+        OnnxModel(path, config_key="detector.local.appearance.model", warmup_hw=(320, 320))
+    assert str(err.value) == (
+        "detector.local.appearance.model: %s: input 'images' is fixed at [N,3,100,100], expected [N,3,320,320] "
+        "(detector.local.appearance.input_wh [320, 320]) or dynamic H, W" % path)
+    assert OnnxModel(path, warmup_hw=(100, 100)).input_shapes == {"images": ["N", 3, 100, 100]}  # the size it is fed

@@ -1,3 +1,5 @@
+import os
+
 import numpy as np
 import pytest
 
@@ -90,3 +92,61 @@ def test_unwritable_path(tmp_path):
     blocker.write_text("")
     with pytest.raises(DataError, match="cannot write detections CSV"):
         DetectionsCsvWriter(str(blocker / "dets.csv"))
+
+
+# --- CsvLog: the service's records (issue 20) ---------------------------------------------------
+
+
+def test_csv_log_appends_across_restarts_and_rotates_by_size(tmp_path):
+    from payload.records import CsvLog
+
+    path = str(tmp_path / "decisions.csv")
+    for start in range(3):  # three "runs" of 40 rows each, ~35 bytes a row: 4 rotations
+        log = CsvLog(path, ["frame", "note"], max_bytes=1000, keep=2)
+        for i in range(40):
+            assert log.write_rows([(start * 40 + i, "x" * 30)])
+        log.close()
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["decisions.csv", "decisions.csv.1", "decisions.csv.2"]  # older files deleted
+    rows = []
+    for name in reversed(names):
+        lines = (tmp_path / name).read_text().splitlines()
+        assert lines[0] == "frame,note" and "frame,note" not in lines[1:]  # one header a file
+        assert (tmp_path / name).stat().st_size < 1000 + 40
+        rows += [int(line.split(",")[0]) for line in lines[1:]]
+    assert rows == list(range(rows[0], 120))  # in order, nothing lost but what rotated out
+
+
+def test_csv_log_ends_a_cut_row_and_moves_a_foreign_file_aside(tmp_path):
+    from payload.records import CsvLog
+
+    path = tmp_path / "decisions.csv"
+    path.write_text("frame,note\n1,complete\n2,cut sh")  # the last run died mid-row
+    log = CsvLog(str(path), ["frame", "note"])
+    log.write_rows([(3, "next")])
+    log.close()
+    assert path.read_text().splitlines() == ["frame,note", "1,complete", "2,cut sh", "3,next"]
+    path.write_text("old,header\n1,2\n")  # another layout (an older version): kept aside, not mixed
+    log = CsvLog(str(path), ["frame", "note"], keep=1)
+    log.write_rows([(4, "new")])
+    log.close()
+    assert path.read_text() == "frame,note\n4,new\n"
+    assert (tmp_path / "decisions.csv.1").read_text() == "old,header\n1,2\n"
+
+
+def test_csv_log_write_failure_is_reported_once_and_never_raises(tmp_path, caplog):
+    from payload.records import CsvLog
+
+    caplog.set_level("INFO")
+    path = tmp_path / "decisions.csv"
+    path.symlink_to("/dev/full")  # every write: ENOSPC
+    log = CsvLog(str(path), ["frame"], retry_s=0.0)
+    for i in range(20):
+        assert not log.write_rows([(i,)])
+    assert log.lost == 20 and log.rows == 0
+    errors = [r.getMessage() for r in caplog.records if "cannot write" in r.getMessage()]
+    assert len(errors) == 1 and "No space left on device" in errors[0] and "\n" not in errors[0]
+    os.remove(str(path))  # space again
+    assert log.write_rows([(20,)]) and path.read_text() == "frame\n20\n"
+    assert any("writing %s again (20 rows lost" % path in r.getMessage() for r in caplog.records)
+    log.close()

@@ -21,6 +21,7 @@ class SourceStats:
     frames: int = 0  # frames handed out by read()/iteration
     dropped: int = 0  # frames captured but replaced by a newer one before being read
     reconnects: int = 0  # successful re-opens after a loss
+    unreadable: int = 0  # recorded frames that could not be decoded (corrupt or empty image), skipped
     connected: bool = False
 
 
@@ -46,7 +47,8 @@ class FrameSource(abc.ABC):
         """The next frame (for live sources: the newest one).
 
         Returns None when no new frame arrived within timeout_s (a live source that is
-        reconnecting); raises EndOfStream when a finite source is exhausted.
+        reconnecting, or a recording whose next image could not be decoded: skipped and
+        counted in ``stats.unreadable``); raises EndOfStream when a finite source is exhausted.
         """
 
     @abc.abstractmethod

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from payload.capture.base import EndOfStream, FrameSource, now_ns
+from payload.config import path_problem
 from payload.errors import SourceError
 from payload.types import Frame
 
@@ -30,6 +31,9 @@ log = logging.getLogger(__name__)
 
 #: Image types ImageFolderSource picks up (case-insensitive).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
+
+#: What ``_next_image`` returns for a frame that exists but cannot be decoded.
+UNREADABLE = np.empty((0,), np.uint8)
 
 
 class _Recording(FrameSource):
@@ -125,6 +129,9 @@ class _Recording(FrameSource):
         self._pos += 1
         if not decode:
             return None
+        if image is UNREADABLE:  # its place on the timeline stays taken: later frames keep their times
+            self.stats.unreadable += 1
+            return None
         offset_ns = int(round(index * 1e9 / self._rate_fps))
         self.stats.frames += 1
         return Frame(image=image, index=index, t_capture_ns=self._t0[0] + offset_ns, t_wall_ns=self._t0[1] + offset_ns)
@@ -133,12 +140,9 @@ class _Recording(FrameSource):
 def _need_path(path: Optional[str], what: str, want_dir: bool) -> str:
     if not path:
         raise SourceError("capture.path: not set: expected the %s" % what)
-    if not os.path.exists(path):
-        raise SourceError("capture.path: %s: no such %s" % (path, "folder" if want_dir else "file"))
-    if want_dir and not os.path.isdir(path):
-        raise SourceError("capture.path: %s: is a file, expected a folder of images (or use source: file)" % path)
-    if not want_dir and os.path.isdir(path):
-        raise SourceError("capture.path: %s: is a folder, expected a video file (or use source: folder)" % path)
+    problem = path_problem(path, want_dir)
+    if problem:
+        raise SourceError("capture.path: %s" % problem)
     return path
 
 
@@ -207,8 +211,10 @@ class ImageFolderSource(_Recording):
             return np.empty((0,), np.uint8)
         path = self.files[self._pos]
         image = cv2.imread(path, cv2.IMREAD_COLOR)
-        if image is None:
-            raise SourceError("capture.path: %s: cannot be read as an image" % path)
+        if image is None:  # corrupt, empty, or gone since listed: skip it, the recording goes on
+            if not self.stats.unreadable:
+                log.warning("capture.path: %s: cannot be read as an image; skipped (counted as unreadable)", path)
+            return UNREADABLE
         return image
 
     def _close_media(self) -> None:

@@ -70,12 +70,25 @@ def _describe(shape) -> str:
     return "[%s]" % ",".join(str(d) if isinstance(d, int) else (d or "?") for d in shape)
 
 
+def _check_fixed_dims(where: str, config_key: str, name: str, shape, channels: int, hw: Tuple[int, int]) -> None:
+    """A model whose input is fixed to another size than the one it will be fed fails on the first
+    frame inside ONNX Runtime: say so at load, naming the shape found and the one expected."""
+    want = [1, channels, int(hw[0]), int(hw[1])]
+    if all(not isinstance(d, int) or d <= 0 or d == w for d, w in zip(shape, want)):
+        return
+    size_key = config_key[: -len(".model")] + ".input_wh" if config_key.endswith(".model") else "the input size"
+    raise ModelError("%s: input '%s' is fixed at %s, expected %s (%s [%d, %d]) or dynamic H, W"
+                     % (where, name, _describe(shape), _describe(["N", channels, hw[0], hw[1]]), size_key,
+                        hw[1], hw[0]))
+
+
 class OnnxModel:
     """One inference session. ``expected_inputs`` maps each input name to its channel count (NCHW).
 
     ``config_key`` names the config field the path came from, for error messages;
-    ``warmup_hw`` is the (H, W) the warm-up feeds to dynamic inputs: use the live input size so
-    that TensorRT builds its engine for it here and not on the first live frame.
+    ``warmup_hw`` is the (H, W) the caller will feed (batch 1): the warm-up feeds it to dynamic
+    inputs, so that TensorRT builds its engine for it here and not on the first live frame, and
+    an input fixed to another size is refused here with one line.
     """
 
     def __init__(
@@ -104,7 +117,9 @@ class OnnxModel:
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = int(threads)
-        opts.log_severity_level = 3
+        # FATAL only: ORT's errors reach us as exceptions, which the service reports once a summary
+        # interval; at ERROR it would also print each one itself (a line a frame when every frame fails).
+        opts.log_severity_level = 4
         # Idle intra-op threads must sleep, not spin: on 2-6 cores a spinning ORT worker takes a
         # core from the OpenCV work (decode, optical flow) that follows each inference.
         # Measured on 2 cores (docs/results.md): 146 -> 230 FPS, p99 latency 23 -> 8 ms, 640x512.
@@ -121,6 +136,8 @@ class OnnxModel:
             if not ok:
                 found = ", ".join("'%s' %s" % (n, _describe(s)) for n, s in inputs.items()) or "no inputs"
                 raise ModelError("%s: expected input '%s' [N,%d,H,W], found %s" % (where, name, channels, found))
+            if warmup_hw is not None:
+                _check_fixed_dims(where, config_key, name, shape, channels, warmup_hw)
         self.input_shapes = {n: list(inputs[n]) for n in expected_inputs}
         self._channels = expected_inputs
         self.output_names = [o.name for o in self.session.get_outputs()]

@@ -17,12 +17,12 @@ target starts again there.
 import logging
 import time
 from dataclasses import dataclass, field, replace
-from typing import Dict, Optional, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import cv2
 import numpy as np
 
-from payload.config import DetectorConfig
+from payload.config import DetectorConfig, section_changes
 from payload.detect.classifier import LockCheck
 from payload.detect.motion import HomographyEstimate, MotionDetector, estimate_homography
 from payload.detect.region import SearchRegion
@@ -131,8 +131,18 @@ class Glad:
             return 0, c.lock_threshold, 0, c.confirm_threshold
         return c.lock_hits, c.lock_threshold, c.confirm_hits, c.confirm_threshold
 
-    def update_config(self, cfg: DetectorConfig) -> None:
-        """Hot reload: thresholds and switches; models stay as loaded."""
+    def update_config(self, cfg: DetectorConfig) -> List[str]:
+        """Hot reload: thresholds and switches; models stay as loaded. Returns the keys applied:
+        switching on a stage whose model was not loaded at start is not (it needs a restart)."""
+        data = cfg.model_dump(by_alias=True)  # a stage without a loaded model stays off, as it runs
+        if self.models.global_appearance is None:
+            data["global"]["appearance"]["enabled"] = False
+        if self.models.local_appearance is None:
+            data["local"]["appearance"]["enabled"] = False
+        if self.models.classifier is None:
+            data["classifier"]["enabled"] = False
+        cfg = DetectorConfig.model_validate(data)
+        applied = section_changes(self.cfg, cfg, "detector")
         self.cfg = cfg
         self._ego_cfg = _ego_motion_config(cfg)
         self.gmd.update_config(cfg.global_.motion)
@@ -147,6 +157,7 @@ class Glad:
             self.models.local_appearance.update_config(cfg.local.appearance)
         if self.models.classifier is not None:
             self.models.classifier.update_config(cfg.classifier)
+        return applied
 
     def reset(self) -> None:
         self.switcher.reset()

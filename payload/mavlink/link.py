@@ -49,8 +49,9 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Deque, Dict, List, Optional, Tuple
 
-from payload.config import MavlinkConfig
-from payload.errors import ConfigError
+# The connection check and the key reading live in the config layer, so that check-config runs them too.
+from payload.config import MavlinkConfig, load_signing_key  # noqa: F401  (re-exported)
+from payload.config import check_connection as _check_connection
 from payload.geometry import Attitude
 from payload.mavlink.ratelog import RateLimitedLog
 from payload.mavlink.signing import SigningState, default_state_path
@@ -66,7 +67,6 @@ _TIMESYNC_PERIOD_S = 1.0
 _TIMESYNC_SAMPLES = 8
 _ATTITUDE_BUFFER = 512
 _ATTITUDE_HOLD_NS = 100_000_000  # nearest sample is used this far outside the buffered span
-_CONNECTION_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:")
 _UINT64_MAX = (1 << 64) - 1
 _ANGLE_MAX = 4 * math.pi  # |roll|, |pitch|, |yaw| beyond this is not an attitude
 _SIGNING_LINK_ID = 0
@@ -84,46 +84,6 @@ def constant(name: str, default: Optional[int] = None) -> int:
     if value is None:
         raise KeyError(f"MAVLink constant {name} is not in this pymavlink dialect")
     return int(value)
-
-
-def load_signing_key(path: str) -> bytes:
-    """The 32-byte signing key from a file holding 32 raw bytes or 64 hex characters."""
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except OSError as exc:
-        raise ConfigError([f"mavlink.signing.key_file={path}: cannot read: {exc.strerror or exc}"]) from None
-    if len(data) == 32:
-        return data
-    text = data.strip()
-    if len(text) == 64:
-        try:
-            return bytes.fromhex(text.decode("ascii"))
-        except (UnicodeDecodeError, ValueError):
-            pass
-    raise ConfigError(
-        [
-            f"mavlink.signing.key_file={path}: expected 32 raw bytes or 64 hex characters, got {len(data)} bytes"
-        ]
-    )
-
-
-def _check_connection(connection: str) -> None:
-    if connection.startswith(_CONNECTION_PREFIXES):
-        host_port = connection.split(":", 1)[1]
-        parts = host_port.rsplit(":", 1)
-        if len(parts) == 2 and parts[0] and parts[1].isdigit() and 0 < int(parts[1]) < 65536:
-            return
-        scheme = connection.split(":")[0]
-        raise ConfigError([f"mavlink.connection={connection!r}: expected {scheme}:HOST:PORT with a port in 1..65535"])
-    if connection.startswith("/") or connection.upper().startswith("COM"):
-        return  # serial device
-    raise ConfigError(
-        [
-            f"mavlink.connection={connection!r}: expected a serial device (/dev/ttyTHS0)"
-            " or udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT"
-        ]
-    )
 
 
 @dataclass(frozen=True)

@@ -17,16 +17,18 @@ Per processed frame the service calls ``TargetPublisher.publish(target, bearing,
   size 0. A precision-landing autopilot may steer toward it: a WARNING is logged at start.
 
 ``max_rate_hz`` caps target messages per second (0 = every processed frame). While detection
-is disabled by command (``link.detection_enabled`` False) nothing is sent.
+is disabled by command (``link.detection_enabled`` False) nothing is sent. No message goes out
+with a value that is not finite, except the NaNs MAVLink defines as "unknown" (the radius, the
+IDLE status's fields): such a message is withheld and counted (``stats.not_finite``).
 """
 
 import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import List, Optional, Tuple
 
-from payload.config import MavlinkOutputsConfig
+from payload.config import MavlinkOutputsConfig, section_changes
 from payload.mavlink.link import MavlinkLink, constant
 from payload.types import Bearing, Target
 
@@ -52,6 +54,7 @@ class PublisherStats:
     rate_limited: int = 0  # frames skipped by max_rate_hz
     disabled: int = 0  # frames skipped while detection is disabled by command
     no_attitude: int = 0  # DEBUG_VECT withheld: level frame asked, no attitude
+    not_finite: int = 0  # messages withheld because a value was NaN or infinite
 
 
 class TargetPublisher:
@@ -66,10 +69,15 @@ class TargetPublisher:
         self._had_target = False
         self._warned_level = False
         if cfg.landing_target:
-            log.warning(
-                "mavlink.outputs.landing_target is on: a precision-landing autopilot may steer "
-                "toward the detected drone; disable it unless that is intended"
-            )
+            _warn_landing_target()
+
+    def apply(self, cfg: MavlinkOutputsConfig) -> List[str]:
+        """Take a reloaded ``mavlink.outputs`` section from the next frame on; returns the keys applied."""
+        keys = section_changes(self.cfg, cfg, "mavlink.outputs")
+        if cfg.landing_target and not self.cfg.landing_target:
+            _warn_landing_target()
+        self.cfg = cfg
+        return keys
 
     def publish(self, target: Optional[Target], bearing: Optional[Bearing], image_wh: Tuple[int, int]) -> int:
         """Send this frame's messages; returns how many were sent (0 when skipped or the link is down)."""
@@ -129,6 +137,9 @@ class TargetPublisher:
             return min(max(y / h, 0.0), 1.0)
 
         status = _ACTIVE if target.measured else _ACTIVE | _COASTING
+        if not _finite(cx, cy, x1, y1, x2, y2):
+            self.stats.not_finite += 1
+            return 0
         return int(
             self.link.send_message(
                 "CAMERA_TRACKING_IMAGE_STATUS",
@@ -149,6 +160,9 @@ class TargetPublisher:
             az, el = bearing.az_level_rad, bearing.el_level_rad
         else:
             az, el = bearing.az_body_rad, bearing.el_body_rad
+        if not _finite(az, el, bearing.confidence):
+            self.stats.not_finite += 1
+            return 0
         return int(
             self.link.send_message(
                 "DEBUG_VECT",
@@ -158,7 +172,8 @@ class TargetPublisher:
         )
 
     def _landing_target(self, bearing: Bearing) -> int:
-        if not (math.isfinite(bearing.az_body_rad) and math.isfinite(bearing.el_body_rad)):
+        if not _finite(bearing.az_body_rad, bearing.el_body_rad):
+            self.stats.not_finite += 1
             return 0
         return int(
             self.link.send_message(
@@ -168,3 +183,14 @@ class TargetPublisher:
                 distance=0.0, size_x=0.0, size_y=0.0, type=_LANDING_VISION,
             )
         )
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(float(v)) for v in values)
+
+
+def _warn_landing_target() -> None:
+    log.warning(
+        "mavlink.outputs.landing_target is on: a precision-landing autopilot may steer "
+        "toward the detected drone; disable it unless that is intended"
+    )

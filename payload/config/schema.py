@@ -1,25 +1,21 @@
-"""The payload's configuration: a typed object built once from YAML.
+"""The configuration schema: every section and key with its default, bounds and rules.
 
-Every tunable of the GLAD paper lives here with its bounds. ``load_config(path)`` returns a
-``Config`` or raises ``ConfigError`` whose ``problems`` are one line each, in the form
-``FILE:LINE: dotted.key: value ... rule`` so that a field operator can fix the file.
-Validation never opens devices or loads models.
+Every tunable of the GLAD paper lives here with its bounds. The rules here look at the values
+only (no file is opened); ``payload.config.checks`` looks at the files and folders they name.
 """
 
-import difflib
-from typing import Any, Dict, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
-import yaml
-from annotated_types import Ge, Gt, Le, Lt
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
-from typing_extensions import Literal
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from typing_extensions import Annotated, Literal
 
 from payload.errors import ConfigError
 
 
 class Section(BaseModel):
-    # Unknown keys are rejected: a typo must not pass silently.
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # Unknown keys are rejected: a typo must not pass silently. No NaN or infinity anywhere:
+    # a NaN threshold compares false with everything and a NaN intrinsic gives NaN bearings.
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Retry(Section):
@@ -238,7 +234,7 @@ class DetectorConfig(Section):
     search_region: SearchRegionConfig = SearchRegionConfig()
     switcher: SwitcherConfig = SwitcherConfig()
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
 
 
 class SigningConfig(Section):
@@ -262,6 +258,35 @@ class MavlinkOutputsConfig(Section):
     max_rate_hz: float = Field(0.0, ge=0, le=1000, description="Cap on target messages per second; 0 = every frame.")
 
 
+_CONNECTION_PREFIXES = ("udpin:", "udpout:", "udp:", "tcp:")
+
+
+def connection_problem(connection: str) -> Optional[str]:
+    """Why a ``mavlink.connection`` string cannot be opened, or None when it can."""
+    if connection.startswith(_CONNECTION_PREFIXES):
+        host_port = connection.split(":", 1)[1]
+        parts = host_port.rsplit(":", 1)
+        if len(parts) == 2 and parts[0] and parts[1].isdigit() and 0 < int(parts[1]) < 65536:
+            return None
+        scheme = connection.split(":")[0]
+        return "%r: expected %s:HOST:PORT with a port in 1..65535" % (connection, scheme)
+    if connection.startswith("/") or connection.upper().startswith("COM"):
+        return None  # serial device
+    return ("%r: expected a serial device (/dev/ttyTHS0) or udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT"
+            % (connection,))
+
+
+def check_connection(connection: str) -> None:
+    """ConfigError (one line) unless the connection string is one the link can open."""
+    problem = connection_problem(connection)
+    if problem is not None:
+        raise ConfigError(["mavlink.connection=" + problem])
+
+
+#: A MAVLink system id.
+SysId = Annotated[int, Field(ge=1, le=255)]
+
+
 class MavlinkConfig(Section):
     enabled: bool = True
     connection: str = Field("udpout:127.0.0.1:14550", min_length=1)
@@ -273,15 +298,26 @@ class MavlinkConfig(Section):
     autopilot_timeout_s: float = Field(3.0, gt=0, le=600)
     attitude_rate_hz: float = Field(50.0, ge=0, le=500)
     timesync: bool = True
-    command_sysids: List[int] = Field([255], description="System ids allowed to command us (255 = a GCS).")
+    command_sysids: List[SysId] = Field([255], max_length=255, description="System ids allowed to command us (255 = a GCS).")
     retry: Retry = Retry()
     signing: SigningConfig = SigningConfig()
     outputs: MavlinkOutputsConfig = MavlinkOutputsConfig()
+
+    @field_validator("connection")
+    @classmethod
+    def _connection(cls, value: str) -> str:
+        problem = connection_problem(value)
+        if problem is not None:
+            raise ValueError(problem)
+        return value
 
 
 class OutputsConfig(Section):
     directory: Optional[str] = Field(None, description="Where detections.csv and decisions.csv are written; null = not written.")
     video: bool = Field(False, description="Also write an annotated video there.")
+    # The CSVs are appended to across restarts; at this size a file becomes FILE.1 (FILE.1 -> FILE.2 ...).
+    max_file_bytes: int = Field(100_000_000, ge=10_000, le=10**12, description="Rotate a CSV at this size.")
+    keep_files: int = Field(5, ge=0, le=1000, description="Rotated CSVs kept beside the current one.")
 
 
 class LoggingConfig(Section):
@@ -298,234 +334,3 @@ class Config(Section):
     logging: LoggingConfig = LoggingConfig()
 
 
-#: Dotted prefixes whose change needs a restart; everything else is applied on SIGHUP.
-RESTART_KEYS = (
-    "capture",
-    "mavlink.connection",
-    "mavlink.baud",
-    "mavlink.system_id",
-    "mavlink.component_id",
-    "mavlink.component_type",
-    "mavlink.signing",
-    "detector.backend",
-    "detector.threads",
-    "detector.fp16",
-    "detector.engine_cache_dir",
-    "detector.global.appearance.model",
-    "detector.global.appearance.input_wh",
-    "detector.local.appearance.model",
-    "detector.local.appearance.input_wh",
-    "detector.classifier.model",
-    "outputs",
-)
-
-
-def _flatten(data: Any, prefix: str = "") -> Dict[str, Any]:
-    if isinstance(data, dict):
-        out = {}
-        for key, value in data.items():
-            out.update(_flatten(value, "%s.%s" % (prefix, key) if prefix else str(key)))
-        return out
-    return {prefix: data}
-
-
-def flat_config(cfg: Config) -> Dict[str, Any]:
-    """Every leaf of a config by its dotted YAML key, e.g. 'detector.global.appearance.confidence'."""
-    return _flatten(cfg.model_dump(by_alias=True))
-
-
-def changed_keys(old: Config, new: Config) -> List[str]:
-    """Dotted keys whose values differ between two configs."""
-    a, b = flat_config(old), flat_config(new)
-    return sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
-
-
-def restart_required(old: Config, new: Config) -> List[str]:
-    """Dotted keys that differ between two configs and only take effect after a restart."""
-    return [k for k in changed_keys(old, new) if any(k == p or k.startswith(p + ".") for p in RESTART_KEYS)]
-
-
-# --- loading and error messages -------------------------------------------------------------
-
-
-def _line_map(text: str) -> Dict[Tuple, int]:
-    """Map each YAML key path to its 1-based line, so errors can point into the file."""
-    lines: Dict[Tuple, int] = {}
-    try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-    except yaml.YAMLError:
-        return lines
-
-    def walk(node, path):
-        if isinstance(node, yaml.MappingNode):
-            for key_node, value_node in node.value:
-                p = path + (key_node.value,)
-                lines[p] = key_node.start_mark.line + 1
-                walk(value_node, p)
-        elif isinstance(node, yaml.SequenceNode):
-            for i, item in enumerate(node.value):
-                lines[path + (i,)] = item.start_mark.line + 1
-                walk(item, path + (i,))
-
-    if root is not None:
-        walk(root, ())
-    return lines
-
-
-def _field_for(loc: Tuple) -> Tuple[Optional[Any], Optional[type]]:
-    """The pydantic FieldInfo at a location, and the model that holds it."""
-    model: Any = Config
-    info = None
-    for part in loc:
-        if not (isinstance(model, type) and issubclass(model, BaseModel)):
-            return info, None
-        fields = model.model_fields
-        name = next((n for n, f in fields.items() if n == part or f.alias == part), None)
-        if name is None:
-            return None, model
-        info = fields[name]
-        owner = model
-        model = info.annotation
-    return info, owner
-
-
-def _bounds(info) -> Tuple[Optional[float], Optional[float], str, str]:
-    lo = hi = None
-    lo_op, hi_op = "[", "]"
-    for m in getattr(info, "metadata", []):
-        if isinstance(m, Ge):
-            lo = m.ge
-        elif isinstance(m, Gt):
-            lo, lo_op = m.gt, "("
-        elif isinstance(m, Le):
-            hi = m.le
-        elif isinstance(m, Lt):
-            hi, hi_op = m.lt, ")"
-    return lo, hi, lo_op, hi_op
-
-
-def _fmt(value: Any) -> str:
-    if isinstance(value, str):
-        return repr(value)
-    if isinstance(value, float) and value.is_integer():
-        return repr(value)
-    return repr(value) if not isinstance(value, (dict, list)) else yaml.safe_dump(value, default_flow_style=True).strip()
-
-
-def _message(err: Dict[str, Any]) -> Tuple[Tuple, str]:
-    """One operator-readable message for one pydantic error: (YAML path, text)."""
-    loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-after")))
-    kind = err["type"]
-    value = err.get("input")
-    ctx = err.get("ctx", {})
-    if kind == "extra_forbidden":
-        parent_info, owner = _field_for(loc[:-1]) if len(loc) > 1 else (None, Config)
-        model = parent_info.annotation if parent_info is not None else owner
-        known = []
-        if isinstance(model, type) and issubclass(model, BaseModel):
-            known = [f.alias or n for n, f in model.model_fields.items()]
-        guess = difflib.get_close_matches(str(loc[-1]), known, n=1, cutoff=0.6)
-        hint = " (did you mean %r?)" % guess[0] if guess else " (allowed: %s)" % ", ".join(known) if known else ""
-        return loc, "unknown key%s" % hint
-    info, _ = _field_for(loc)
-    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
-        lo, hi, lo_op, hi_op = _bounds(info) if info is not None else (None, None, "[", "]")
-        if lo is not None and hi is not None:
-            return loc, "%s is not in %s%s, %s%s" % (_fmt(value), lo_op, lo, hi, hi_op)
-        limit = next(iter(ctx.values())) if ctx else "?"
-        rel = {"greater_than": "> ", "greater_than_equal": ">= ", "less_than": "< ", "less_than_equal": "<= "}[kind]
-        return loc, "%s must be %s%s" % (_fmt(value), rel, limit)
-    if kind == "literal_error":
-        return loc, "%s is not one of %s" % (_fmt(value), ctx.get("expected", ""))
-    if kind == "missing":
-        return loc, "is required"
-    if kind in ("int_type", "int_parsing", "int_from_float"):
-        return loc, "%s is not a whole number" % _fmt(value)
-    if kind in ("float_type", "float_parsing"):
-        return loc, "%s is not a number" % _fmt(value)
-    if kind in ("bool_type", "bool_parsing"):
-        return loc, "%s is not true or false" % _fmt(value)
-    if kind in ("string_type",):
-        return loc, "%s is not text" % _fmt(value)
-    if kind in ("string_too_short", "string_too_long"):
-        return loc, "%s: %s" % (_fmt(value), err["msg"].lower())
-    if kind in ("model_type", "dict_type"):
-        return loc, "%s should be a section of keys (a mapping)" % _fmt(value)
-    if kind in ("tuple_type", "list_type", "too_short", "too_long"):
-        return loc, "%s: %s" % (_fmt(value), err["msg"].lower())
-    if kind == "value_error":
-        return loc, str(ctx.get("error", err["msg"]))
-    return loc, "%s: %s" % (_fmt(value), err["msg"])
-
-
-def _dotted(loc: Tuple) -> str:
-    out = ""
-    for p in loc:
-        out += "[%d]" % p if isinstance(p, int) else ("." if out else "") + str(p)
-    return out or "(top level)"
-
-
-def _merged(defaults: Any, data: Any) -> Any:
-    """``data`` laid over ``defaults``, section by section: a file that sets one key of a section
-    keeps the section's other defaults. (Validating the file alone would build a partial section
-    from its class defaults: the local stage's appearance would fall back to the global T0 and
-    input size.)"""
-    if not (isinstance(defaults, dict) and isinstance(data, dict)):
-        return data
-    out = dict(defaults)
-    for key, value in data.items():
-        out[key] = _merged(defaults.get(key), value)
-    return out
-
-
-def parse_config(data: Any, source: str = "<config>", text: Optional[str] = None) -> Config:
-    """Validate already-parsed YAML data; raise ConfigError with one line per problem."""
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise ConfigError(["%s: the file must hold a mapping of sections (capture, detector, ...), got %s" % (source, type(data).__name__)])
-    lines = _line_map(text) if text else {}
-    try:
-        return Config.model_validate(_merged(_DEFAULTS, data))
-    except ValidationError as exc:
-        problems = []
-        for err in exc.errors():
-            loc, msg = _message(err)
-            line = lines.get(loc) or next((lines[loc[:i]] for i in range(len(loc), 0, -1) if loc[:i] in lines), None)
-            where = "%s:%d" % (source, line) if line else source
-            problems.append("%s: %s: %s" % (where, _dotted(loc), msg))
-        raise ConfigError(problems) from None
-
-
-_DEFAULTS = Config().model_dump(by_alias=True)
-
-
-def load_config(path: Optional[str] = None) -> Config:
-    """Read and validate a YAML file; None gives the built-in defaults (= configs/default.yaml)."""
-    if path is None:
-        return Config()
-    try:
-        with open(path, encoding="utf-8") as fh:
-            text = fh.read()
-    except OSError as exc:
-        raise ConfigError(["%s: cannot read config file: %s" % (path, exc.strerror or exc)]) from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = "%s:%d" % (path, mark.line + 1) if mark else path
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(["%s: not valid YAML: %s" % (where, problem)]) from None
-    return parse_config(data, source=path, text=text)
-
-
-def config_with(base: Config, **overrides: Any) -> Config:
-    """A copy of ``base`` with dotted-key overrides, validated: config_with(c, **{"detector.global.appearance.enabled": False})."""
-    data = base.model_dump(by_alias=True)
-    for dotted, value in overrides.items():
-        node = data
-        parts = dotted.split(".")
-        for p in parts[:-1]:
-            node = node[p]
-        node[parts[-1]] = value
-    return parse_config(data, source="<override>")
