@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from payload.config import MavlinkConfig, MavlinkOutputsConfig
-from payload.mavlink.link import MavlinkLink, mavutil
+from payload.mavlink.link import MavlinkLink
+from payload.mavlink.transport import mavlink
 from payload.mavlink.outputs import TargetPublisher
 from payload.types import Bearing, Target
 
@@ -38,7 +39,7 @@ def wire():
     deadline = time.monotonic() + 10
     while not link.status.connected and time.monotonic() < deadline:
         time.sleep(0.05)
-    parser = mavutil.mavlink.MAVLink(None)
+    parser = mavlink.MAVLink(None)
 
     def read():
         out = []

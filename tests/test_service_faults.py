@@ -8,6 +8,7 @@ import math
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -366,35 +367,46 @@ class NanAutopilot(threading.Thread):
 
     def __init__(self, port):
         super().__init__(daemon=True)
-        from payload.mavlink.link import mavutil  # the link's MAVLink 2 dialect
+        from payload.mavlink.transport import mavlink  # the link's MAVLink 2 dialect
 
-        self.mav = mavutil.mavlink
-        self.conn = mavutil.mavlink_connection("udpin:127.0.0.1:%d" % port, source_system=1, source_component=1)
+        self.mav = mavlink
+        self.parser = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.settimeout(0.01)
+        self.peer = None  # the payload's address, from its first datagram (udpin)
         self.phase = 0
         self.received = []
         self.stop_event = threading.Event()
         self.t0 = time.monotonic()
+
+    def _send(self, msg):
+        self.sock.sendto(msg.pack(self.parser), self.peer)
 
     def run(self):
         m = self.mav
         next_hb = next_att = 0.0
         while not self.stop_event.is_set():
             now = time.monotonic()
-            if getattr(self.conn, "clients", None) or getattr(self.conn, "last_address", None):
+            if self.peer is not None:
                 if now >= next_hb:
-                    self.conn.mav.send(m.MAVLink_heartbeat_message(m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                                                                   0, 0, m.MAV_STATE_ACTIVE, 3))
+                    self._send(m.MAVLink_heartbeat_message(m.MAV_TYPE_QUADROTOR, m.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                                           0, 0, m.MAV_STATE_ACTIVE, 3))
                     next_hb = now + 1.0
                 if now >= next_att:
                     roll = float("nan") if self.phase == 1 else 0.1
                     pitch = float("inf") if self.phase == 2 else 0.05
                     yaw = -float("inf") if self.phase == 3 else 0.3
                     boot_ms = int((now - self.t0) * 1000)
-                    self.conn.mav.send(m.MAVLink_attitude_message(boot_ms, roll, pitch, yaw, 0.0, 0.0, 0.0))
+                    self._send(m.MAVLink_attitude_message(boot_ms, roll, pitch, yaw, 0.0, 0.0, 0.0))
                     next_att = now + 1 / 30.0
-            msg = self.conn.recv_match(blocking=True, timeout=0.01)
-            if msg is not None and msg.get_type() in ("DEBUG_VECT", "LANDING_TARGET", "CAMERA_TRACKING_IMAGE_STATUS"):
-                self.received.append((time.monotonic(), msg.get_type(), msg.to_dict()))
+            try:
+                data, self.peer = self.sock.recvfrom(65535)
+            except socket.timeout:
+                continue
+            for msg in self.parser.parse_buffer(data) or []:
+                if msg.get_type() in ("DEBUG_VECT", "LANDING_TARGET", "CAMERA_TRACKING_IMAGE_STATUS"):
+                    self.received.append((time.monotonic(), msg.get_type(), msg.to_dict()))
 
     def of_type(self, kind, start=0.0, end=float("inf")):
         return [f for t, k, f in list(self.received) if k == kind and start <= t < end]
@@ -430,6 +442,7 @@ def test_nan_and_inf_attitude_never_reach_a_sent_bearing(tmp_path):
         if proc.poll() is None:
             proc.kill()
     autopilot.join(5)
+    autopilot.sock.close()
     log = log_text(log_path)
     assert "Traceback" not in log and " faults=0" in [line for line in log.splitlines() if "final fps=" in line][-1]
     for f in autopilot.of_type("DEBUG_VECT"):
