@@ -10,8 +10,8 @@ import pytest
 
 from payload.config import MavlinkConfig, MavlinkOutputsConfig
 from payload.mavlink.link import MavlinkLink
-from payload.mavlink.transport import mavlink
 from payload.mavlink.outputs import TargetPublisher
+from payload.mavlink.transport import mavlink
 from payload.types import Bearing, Target
 
 NAN, INF = float("nan"), float("inf")
