@@ -112,7 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split", default=None, help="run detect+score on a split of splits.json, e.g. val")
     p.add_argument("--splits", default=None, help="splits.json (default: ../shared/data/halmstad/splits.json)")
     p.add_argument("--clips", nargs="*", default=[], help="video files to run detect+score on (labels beside or in --labels)")
-    p.add_argument("--config", "-c", default=None, help="YAML file for detect (default: built-in defaults)")
+    p.add_argument("--config", "-c", default=None,
+                   help="YAML file for detect and the camera model (default: built-in defaults)")
     p.add_argument("--json", default=None, help="also write the table as JSON here")
     p.add_argument("--limit", type=int, default=0, help="only the first N frames of each clip (0 = all)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -123,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "zoomed and shook, one camera path per clip from SEED")
     p.add_argument("--iou", type=float, default=0.5,
                    help="a detection matches a labelled box when their IoU exceeds this (default 0.5, the paper's)")
+    p.add_argument("--frame-size", nargs=2, type=int, default=None, metavar=("W", "H"),
+                   help="--dets: frame size of the scored clips, for the bearing error (camera section of --config)")
     p.set_defaults(func=_eval)
 
     p = sub.add_parser("bench", help="speed profile of a clip (per module, FPS, latency) or --ablation (Table V + baselines)")
