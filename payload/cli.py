@@ -144,6 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, default=0, help="only the first N frames of each clip (0 = all)")
     p.add_argument("--limit-clips", type=int, default=0, metavar="N",
                    help="only N clips of each kind per fold, spread over its clip numbers (0 = all)")
+    p.add_argument("--folds-only", type=int, nargs="+", default=None, metavar="K",
+                   help="run only these folds (e.g. the folds whose models are trained so far)")
     p.add_argument("--dets-dir", default=None, metavar="DIR",
                    help="keep each clip's detections here; a rerun with the same settings resumes / re-scores from them")
     p.add_argument("--iou", type=float, default=0.5, help="IoU a match must exceed (default 0.5, the paper's)")

@@ -298,6 +298,17 @@ def test_cv_command_with_fold_models(tiny_halmstad, tmp_path, capsys):
     assert main(argv + ["--fold-models", str(models)]) == 2
     err = capsys.readouterr().err.strip()
     assert "missing" in err and "fold2/glad_local.onnx" in err and "\n" not in err
+    # the folds trained so far can be run on their own
+    assert main(argv + ["--fold-models", str(models), "--folds-only", "1", "0", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "folds 0 1 only" in printed and "mean +- sd over the 2 folds run (of 3)" in printed
+    report = json.loads(out.read_text())
+    assert [f["fold"] for f in report["folds"]] == [0, 1] and report["folds_run"] == [0, 1]
+    assert report["summary"]["visible negatives"]["fold_ids"] == [0, 1]
+    rows = [line.split() for line in printed.splitlines() if line.startswith("visible negatives")]
+    assert [r[2] for r in rows] == ["0", "1", "mean", "sd", "pooled"]
+    assert main(argv + ["--folds-only", "3"]) == 2
+    assert "--folds-only 3: folds are 0..2" in capsys.readouterr().err
 
 
 def test_cv_command_without_data_is_a_one_line_error(tmp_path, capsys):

@@ -112,17 +112,17 @@ def fold_clips(clips: Sequence[ClipSpec], folds: Folds, limit_clips: int = 0) ->
     return out
 
 
-def fold_model_files(models_dir: str, k: int) -> List[Dict[str, str]]:
+def fold_model_files(models_dir: str, folds: Sequence[int]) -> Dict[int, Dict[str, str]]:
     """Per fold, config key -> ONNX file under ``models_dir``/fold{k}/; all must exist."""
-    out, missing = [], []
-    for fold in range(k):
+    out, missing = {}, []
+    for fold in folds:
         files = {}
         for key, name in MODEL_FILES:
             path = os.path.join(models_dir, "fold%d" % fold, name)
             if not os.path.isfile(path):
                 missing.append(path)
             files[key] = path
-        out.append(files)
+        out[fold] = files
     if missing:
         raise UsageError("--fold-models %s: missing %s" % (models_dir, ", ".join(missing)))
     return out
@@ -211,10 +211,13 @@ def group_scores(clips: Sequence[ClipScore]) -> Dict[str, ClipScore]:
 
 
 def run_cv(per_fold: Sequence[Sequence[ClipSpec]], detector_for: Callable[[int], DetectFn],
-           camera: Optional[Callable[[Tuple[int, int]], Any]] = None, iou_match: float = IOU_MATCH) -> List[FoldResult]:
-    """Score each fold's held-out clips with that fold's detector."""
+           camera: Optional[Callable[[Tuple[int, int]], Any]] = None, iou_match: float = IOU_MATCH,
+           only: Optional[Sequence[int]] = None) -> List[FoldResult]:
+    """Score each fold's held-out clips with that fold's detector (``only``: these folds)."""
     results = []
     for fold, clips in enumerate(per_fold):
+        if only is not None and fold not in only:
+            continue
         log.info("cv: fold %d/%d, %d clips", fold + 1, len(per_fold), len(clips))
         scores = score_clips(clips, detector_for(fold), iou_match, camera) if clips else []
         results.append(FoldResult(fold, scores, group_scores(scores)))
@@ -235,7 +238,8 @@ def summarise(results: Sequence[FoldResult]) -> Dict[str, Dict[str, Any]]:
         if not present:
             continue
         pooled = pool(present, name=group)
-        entry: Dict[str, Any] = {"clips": [len([c for c in r.clips if group_of(c.name) == group]) for r in results],
+        entry: Dict[str, Any] = {"fold_ids": [r.fold for r in results],
+                                 "clips": [len([c for c in r.clips if group_of(c.name) == group]) for r in results],
                                  "frames": [s.frames if s is not None else 0 for s in per_fold],
                                  "gt": [s.gt if s is not None else 0 for s in per_fold]}
         for _, key, value in _metrics(group):
@@ -270,13 +274,11 @@ def format_cv(summary: Mapping[str, Mapping[str, Any]]) -> str:
         lines += [header, "-" * len(header)]
         for group in names:
             entry = summary[group]
-            k = len(entry["frames"])
             percent = metrics is NEGATIVE_METRICS
             fmt = functools.partial(_format_metric, percent=percent)
-            for fold in range(k):
-                lines.append("%-18s %6d %5d %7d %6d" % (group, fold, entry["clips"][fold], entry["frames"][fold],
-                                                       entry["gt"][fold])
-                             + "".join(" %7s" % fmt(key, entry[key]["folds"][fold]) for _, key, _ in metrics))
+            for i, fold in enumerate(entry["fold_ids"]):
+                lines.append("%-18s %6d %5d %7d %6d" % (group, fold, entry["clips"][i], entry["frames"][i], entry["gt"][i])
+                             + "".join(" %7s" % fmt(key, entry[key]["folds"][i]) for _, key, _ in metrics))
             totals = (sum(entry["clips"]), sum(entry["frames"]), sum(entry["gt"]))
             for row in ("mean", "sd", "pooled"):
                 lead = "%-18s %6s %5s %7s %6s" % (group, row, *(("%d" % t) if row == "pooled" else "" for t in totals))

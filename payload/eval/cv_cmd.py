@@ -35,19 +35,22 @@ def main_cv(args) -> int:
         if not 0.0 < args.iou < 1.0:
             raise UsageError("--iou %s: expected a number between 0 and 1 (the paper uses 0.5)" % args.iou)
         folds = load_folds(args.folds)
+        only = sorted(set(args.folds_only)) if args.folds_only else list(range(folds.k))
+        if any(not 0 <= f < folds.k for f in only):
+            raise UsageError("--folds-only %s: folds are 0..%d" % (" ".join(map(str, args.folds_only)), folds.k - 1))
         data_dir = os.path.dirname(os.path.abspath(find_splits(args.splits)))
         cfg = load_config(args.config)
         if args.fold_models:
-            files = cv.fold_model_files(args.fold_models, folds.k)
-            cfgs = [config_with(cfg, **f) for f in files]
+            files = cv.fold_model_files(args.fold_models, only)
+            cfgs = {f: config_with(cfg, **files[f]) for f in only}
             models = "per fold: %s/fold{k}/" % args.fold_models
         else:
-            cfgs = [cfg] * folds.k
+            cfgs = {f: cfg for f in only}
             models = cv.SHIPPED_NOTE
         per_fold = cv.fold_clips(cv.halmstad_clips(data_dir), folds, args.limit_clips)
         settings: Dict[str, Any] = {
             "folds": folds.source, "fold_ranges": folds.ranges, "fold_models": args.fold_models,
-            "config": [flat_config(c) for c in cfgs], "limit": args.limit,
+            "config": {str(f): flat_config(c) for f, c in cfgs.items()}, "limit": args.limit,
         }
         detector_for = _detector_for(args, cfgs)
         if args.dets_dir:
@@ -67,14 +70,16 @@ def main_cv(args) -> int:
         subset.append("at most %d clips of each kind per fold" % args.limit_clips)
     if args.limit:
         subset.append("the first %d frames of each clip" % args.limit)
-    print("clips: %d (%s)" % (sum(len(c) for c in per_fold), ", ".join(subset) if subset else "all"), flush=True)
+    if len(only) < folds.k:
+        subset.append("folds %s only" % " ".join(map(str, only)))
+    print("clips: %d (%s)" % (sum(len(per_fold[f]) for f in only), ", ".join(subset) if subset else "all"), flush=True)
     started = time.time()
-    results = cv.run_cv(per_fold, detector_for, camera_for(cfg), args.iou)
+    results = cv.run_cv(per_fold, detector_for, camera_for(cfg), args.iou, only)
     summary = cv.summarise(results)
     print()
     print(cv.format_cv(summary))
     print()
-    print("mean +- sd over the %d folds:" % folds.k)
+    print("mean +- sd over the %d folds%s:" % (len(only), "" if len(only) == folds.k else " run (of %d)" % folds.k))
     for line in cv.headline(summary):
         print("  " + line)
     print("P R F AP: IoU > %g; cP cR cF cAP: box centre inside the labelled box; deg50 deg95: bearing error of "
@@ -86,7 +91,7 @@ def main_cv(args) -> int:
     if args.json:
         meta = {"command": "glad-payload cv " + " ".join(_argv(args)), "models": models,
                 "optimistic": not args.fold_models, "iou_match": args.iou, "camera": describe_camera(cfg),
-                "limit": args.limit, "limit_clips": args.limit_clips, "folds_file": folds.source,
+                "limit": args.limit, "limit_clips": args.limit_clips, "folds_file": folds.source, "folds_run": only,
                 "fold_ranges": folds.ranges, "seconds": round(time.time() - started, 1)}
         try:
             with open(args.json, "w", encoding="utf-8") as handle:
@@ -105,6 +110,8 @@ def _argv(args) -> List[str]:
                         ("--dets-dir", args.dets_dir), ("--json", args.json)):
         if value is not None:
             out += [flag, str(value)]
+    if args.folds_only:
+        out += ["--folds-only"] + [str(f) for f in args.folds_only]
     if args.iou != 0.5:
         out += ["--iou", str(args.iou)]
     return out
