@@ -185,17 +185,18 @@ def test_run_cv_scores_each_fold_with_its_own_detector_and_summarises(tmp_path):
     assert "visible negatives: frames with a false target 25.0 +- 35.4 %" in cv.headline(summary)
 
 
-def test_detections_store_resumes_and_refuses_other_settings(tmp_path):
+def test_detections_store_resumes_adds_folds_and_refuses_other_settings(tmp_path):
     calls = []
     clip = _clip(tmp_path, "V_DRONE_001", 3, (11, 11, 20, 20))
+    root = str(tmp_path / "dets")
 
     def detect(c):
         calls.append(c.name)
         return {0: _det([[10.004, 10, 30, 30]], [0.91234]), 1: Detections.empty(), 2: Detections.empty()}
 
-    store = cv.DetectionsStore(str(tmp_path / "dets"), {"config": "a"})
+    store = cv.DetectionsStore(root, {"limit": 0}, {0: "cfg-a"})
     first = store.wrap(0, detect)(clip)
-    again = cv.DetectionsStore(str(tmp_path / "dets"), {"config": "a"}).wrap(0, detect)(clip)
+    again = cv.DetectionsStore(root, {"limit": 0}, {0: "cfg-a"}).wrap(0, detect)(clip)
     assert calls == ["V_DRONE_001"]  # the second store read it back
     assert sorted(first) == sorted(again) == [0, 1, 2]
     np.testing.assert_allclose(again[0].xyxy, first[0].xyxy)
@@ -203,10 +204,18 @@ def test_detections_store_resumes_and_refuses_other_settings(tmp_path):
     # a cut done.jsonl line (a kill while writing) makes that clip run again, nothing else breaks
     with open(tmp_path / "dets" / "done.jsonl", "a") as handle:
         handle.write('{"fold": 0, "clip": "V_DRO')
-    cv.DetectionsStore(str(tmp_path / "dets"), {"config": "a"}).wrap(0, detect)(clip)
+    cv.DetectionsStore(root, {"limit": 0}, {0: "cfg-a"}).wrap(0, detect)(clip)
     assert calls == ["V_DRONE_001"]
-    with pytest.raises(UsageError, match="was made with other settings \\(config differ\\)"):
-        cv.DetectionsStore(str(tmp_path / "dets"), {"config": "b"})
+    # another fold joins with its own models; then all folds together are read back
+    cv.DetectionsStore(root, {"limit": 0}, {1: "cfg-b"}).wrap(1, detect)(clip)
+    assert calls == ["V_DRONE_001"] * 2
+    both = cv.DetectionsStore(root, {"limit": 0}, {0: "cfg-a", 1: "cfg-b"})
+    both.wrap(0, detect)(clip), both.wrap(1, detect)(clip)
+    assert calls == ["V_DRONE_001"] * 2
+    with pytest.raises(UsageError, match="holds fold 0 with another config or models"):
+        cv.DetectionsStore(root, {"limit": 0}, {0: "cfg-c"})
+    with pytest.raises(UsageError, match="was made with other settings \\(limit differ\\)"):
+        cv.DetectionsStore(root, {"limit": 5}, {0: "cfg-a"})
 
 
 # ---------------------------------------------------------------- the command on a tiny data set

@@ -13,6 +13,7 @@ Per metric: each fold, mean and sample standard deviation over the folds, and al
 """
 
 import functools
+import hashlib
 import json
 import logging
 import math
@@ -128,31 +129,72 @@ def fold_model_files(models_dir: str, folds: Sequence[int]) -> Dict[int, Dict[st
     return out
 
 
+def model_digests(cfg) -> Dict[str, str]:
+    """SHA-256 (first 16 hex digits) of the three ONNX files a config runs (shipped where unset), so
+    that detections kept from other weights at the same path are not taken for these."""
+    from payload.models import builtin_model_path
+
+    files = {"global": cfg.detector.global_.appearance.model, "local": cfg.detector.local.appearance.model,
+             "classifier": cfg.detector.classifier.model}
+    out = {}
+    for name, path in sorted(files.items()):
+        path = path or builtin_model_path(name)
+        digest = hashlib.sha256()
+        try:
+            with open(path, "rb") as handle:
+                for block in iter(lambda: handle.read(1 << 20), b""):
+                    digest.update(block)
+        except OSError as exc:
+            raise DataError("%s: cannot read model: %s" % (path, exc.strerror or exc)) from None
+        out[name] = digest.hexdigest()[:16]
+    return out
+
+
+def _last_byte(path: str) -> bytes:
+    with open(path, "rb") as handle:
+        handle.seek(-1, os.SEEK_END)
+        return handle.read(1)
+
+
 class DetectionsStore:
     """Each finished clip's detections as CSV under ``root``/fold{k}/, so that an interrupted run
     resumes where it stopped and a finished one can be scored again without running GLAD.
 
-    ``settings`` (config, models, frame limit, folds) is kept in ``root``/settings.json; a folder
-    made with other settings is refused rather than mixed. A clip counts as done once its line
-    is in ``root``/done.jsonl (written after its CSV is complete).
+    ``settings`` (frame limit, fold definition, ...) and each fold's ``fold_settings`` (its config
+    and models) are kept in ``root``/settings.json; other settings, or another config for a fold
+    already there, are refused rather than mixed. A fold run for the first time adds its own, so
+    folds can be scored one by one as their models are trained and then all together from the
+    kept detections. A clip counts as done once its line is in ``root``/done.jsonl (written
+    after its CSV is complete).
     """
 
-    def __init__(self, root: str, settings: Mapping[str, Any]) -> None:
+    def __init__(self, root: str, settings: Mapping[str, Any], fold_settings: Mapping[int, Any]) -> None:
         self.root = root
-        self.settings = json.loads(json.dumps(settings, sort_keys=True, default=str))
+        common = json.loads(json.dumps(settings, sort_keys=True, default=str))
+        per_fold = json.loads(json.dumps({str(k): v for k, v in fold_settings.items()}, sort_keys=True, default=str))
         path = os.path.join(root, "settings.json")
         try:
             os.makedirs(root, exist_ok=True)
+            known: Dict[str, Any] = {"common": common, "folds": {}}
             if os.path.isfile(path):
                 with open(path, encoding="utf-8") as handle:
-                    old = json.load(handle)
-                if old != self.settings:
-                    changed = sorted(k for k in set(old) | set(self.settings) if old.get(k) != self.settings.get(k))
+                    known = json.load(handle)
+                old = known.get("common") if isinstance(known, dict) else None
+                if not isinstance(old, dict) or not isinstance(known.get("folds"), dict):
+                    raise UsageError("--dets-dir %s: %s is not this version's settings file; give a new folder"
+                                     % (root, path))
+                if old != common:
+                    changed = sorted(k for k in set(old) | set(common) if old.get(k) != common.get(k))
                     raise UsageError("--dets-dir %s was made with other settings (%s differ); give a new folder"
                                      % (root, ", ".join(changed)))
-            else:
-                with open(path, "w", encoding="utf-8") as handle:
-                    json.dump(self.settings, handle, indent=1, sort_keys=True)
+                clash = sorted(k for k, v in per_fold.items() if k in known["folds"] and known["folds"][k] != v)
+                if clash:
+                    raise UsageError("--dets-dir %s holds fold %s with another config or models; give a new folder"
+                                     % (root, ", ".join(clash)))
+            known["folds"].update(per_fold)
+            with open(path + ".tmp", "w", encoding="utf-8") as handle:
+                json.dump(known, handle, indent=1, sort_keys=True)
+            os.replace(path + ".tmp", path)
             self.done: Dict[Tuple[int, str], int] = {}
             done_path = os.path.join(root, "done.jsonl")
             if os.path.isfile(done_path):
@@ -184,8 +226,12 @@ class DetectionsStore:
                         writer.write(index, found[index])
                 os.replace(tmp, self._csv(fold, clip.name))
                 frames = max(found) + 1 if found else 0
-                with open(os.path.join(self.root, "done.jsonl"), "a", encoding="utf-8") as handle:
-                    handle.write(json.dumps({"fold": fold, "clip": clip.name, "frames": frames}) + "\n")
+                done_path = os.path.join(self.root, "done.jsonl")
+                with open(done_path, "ab") as handle:
+                    # a line cut by a kill must not swallow the next one
+                    cut = handle.tell() > 0 and _last_byte(done_path) != b"\n"
+                    handle.write((b"\n" if cut else b"") + json.dumps(
+                        {"fold": fold, "clip": clip.name, "frames": frames}).encode("utf-8") + b"\n")
                 self.done[key] = frames
             else:
                 log.info("cv: fold=%d clip=%s read back from %s", fold, clip.name, self._csv(fold, clip.name))

@@ -48,13 +48,11 @@ def main_cv(args) -> int:
             cfgs = {f: cfg for f in only}
             models = cv.SHIPPED_NOTE
         per_fold = cv.fold_clips(cv.halmstad_clips(data_dir), folds, args.limit_clips)
-        settings: Dict[str, Any] = {
-            "folds": folds.source, "fold_ranges": folds.ranges, "fold_models": args.fold_models,
-            "config": {str(f): flat_config(c) for f, c in cfgs.items()}, "limit": args.limit,
-        }
+        settings: Dict[str, Any] = {"fold_ranges": folds.ranges, "block_size": folds.block_size, "limit": args.limit}
+        fold_settings = {f: {"config": flat_config(c), "models": cv.model_digests(c)} for f, c in cfgs.items()}
         detector_for = _detector_for(args, cfgs)
         if args.dets_dir:
-            store = cv.DetectionsStore(args.dets_dir, settings)
+            store = cv.DetectionsStore(args.dets_dir, settings, fold_settings)
             plain = detector_for
             detector_for = lambda fold: store.wrap(fold, plain(fold))  # noqa: E731
     except UsageError as exc:
