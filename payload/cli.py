@@ -55,6 +55,12 @@ def _eval(args) -> int:
     return main_eval(args)
 
 
+def _cv(args) -> int:
+    from payload.eval.cv_cmd import main_cv
+
+    return main_cv(args)
+
+
 def _run(args) -> int:
     from payload.service import main_run
 
@@ -118,7 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split", default=None, help="run detect+score on a split of splits.json, e.g. val")
     p.add_argument("--splits", default=None, help="splits.json (default: ../shared/data/halmstad/splits.json)")
     p.add_argument("--clips", nargs="*", default=[], help="video files to run detect+score on (labels beside or in --labels)")
-    p.add_argument("--config", "-c", default=None, help="YAML file for detect (default: built-in defaults)")
+    p.add_argument("--config", "-c", default=None,
+                   help="YAML file for detect and the camera model (default: built-in defaults)")
     p.add_argument("--json", default=None, help="also write the table as JSON here")
     p.add_argument("--limit", type=int, default=0, help="only the first N frames of each clip (0 = all)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -129,7 +136,28 @@ def build_parser() -> argparse.ArgumentParser:
                         "zoomed and shook, one camera path per clip from SEED")
     p.add_argument("--iou", type=float, default=0.5,
                    help="a detection matches a labelled box when their IoU exceeds this (default 0.5, the paper's)")
+    p.add_argument("--frame-size", nargs=2, type=int, default=None, metavar=("W", "H"),
+                   help="--dets: frame size of the scored clips, for the bearing error (camera section of --config)")
     p.set_defaults(func=_eval)
+
+    p = sub.add_parser("cv", help="grouped cross-validation of GLAD over the Halmstad clips: per fold, mean +- sd")
+    p.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
+    p.add_argument("--folds", default=None, help="fold definition (default: payload/eval/folds.json)")
+    p.add_argument("--fold-models", default=None, metavar="DIR",
+                   help="DIR/fold{k}/glad_global.onnx, glad_local.onnx, glad_classifier.onnx trained without fold k "
+                        "(default: the shipped models, which saw these clips: optimistic)")
+    p.add_argument("--splits", default=None, help="Halmstad splits.json, to find the data (default: ../shared/data/halmstad)")
+    p.add_argument("--limit", type=int, default=0, help="only the first N frames of each clip (0 = all)")
+    p.add_argument("--limit-clips", type=int, default=0, metavar="N",
+                   help="only N clips of each kind per fold, spread over its clip numbers (0 = all)")
+    p.add_argument("--folds-only", type=int, nargs="+", default=None, metavar="K",
+                   help="run only these folds (e.g. the folds whose models are trained so far)")
+    p.add_argument("--dets-dir", default=None, metavar="DIR",
+                   help="keep each clip's detections here; a rerun with the same settings resumes / re-scores from them")
+    p.add_argument("--iou", type=float, default=0.5, help="IoU a match must exceed (default 0.5, the paper's)")
+    p.add_argument("--json", default=None, help="write every figure (per fold, per clip, summary) as JSON here")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cv)
 
     p = sub.add_parser("bench", help="speed profile of a clip (per module, FPS, latency) or --ablation (Table V + baselines)")
     p.add_argument("source", nargs="?", default=None,

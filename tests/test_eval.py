@@ -11,7 +11,16 @@ from payload.cli import main
 from payload.errors import DataError
 from payload.eval.cli import UsageError, clips_from_paths, format_table, score_clips, split_clips
 from payload.eval.labels import detect_format, load_labels
-from payload.eval.metrics import ap_11point, iou_matrix, match_frame, pool, score_clip
+from payload.eval.metrics import (
+    ap_11point,
+    bearing_error_deg,
+    centre_match_frame,
+    iou_matrix,
+    match_frame,
+    pool,
+    score_clip,
+)
+from payload.geometry import CameraModel
 from payload.records import DetectionsCsvWriter
 from payload.types import Detections
 
@@ -55,6 +64,78 @@ def test_each_ground_truth_matches_once_and_to_its_best_overlap():
     dets = _det([[3, 0, 13, 10], [0, 0, 10, 10], [0, 0, 10, 10]], [0.9, 0.8, 0.7])
     # 0.9 overlaps gt0 by 0.54 and gt1 by 1.0 -> takes gt1; 0.8 takes gt0; 0.7 finds nothing free.
     assert list(match_frame(dets, gt)) == [True, True, False]
+
+
+# ---------------------------------------------------------------- centre-in-box matching and bearing error
+
+
+def test_centre_in_box_takes_a_small_box_on_the_target_that_iou_rejects():
+    gt = np.array([[0, 0, 40, 40]], np.float32)
+    small = _det([[15, 15, 25, 25]], [0.9])  # centre (20, 20) inside; IoU 100/1600
+    assert not match_frame(small, gt).any()
+    assert list(centre_match_frame(small, gt)) == [0]
+    beside = _det([[41, 0, 81, 40]], [0.9])  # same size, centre outside
+    assert list(centre_match_frame(beside, gt)) == [-1]
+    edge = _det([[30, 10, 50, 30]], [0.9])  # centre (40, 20) on the right edge: inside
+    assert list(centre_match_frame(edge, gt)) == [0]
+
+
+def test_centre_matching_is_one_to_one_by_score():
+    gt = np.array([[0, 0, 40, 40]], np.float32)
+    dets = _det([[10, 10, 20, 20], [12, 12, 22, 22]], [0.5, 0.9])
+    assert list(centre_match_frame(dets, gt)) == [-1, 0]  # the higher score takes the only box
+
+
+def test_centre_matching_takes_the_box_whose_centre_is_nearest():
+    # both boxes contain the first (higher-scored) centre; it takes gt1, whose centre is nearer,
+    # which leaves gt0 to the second detection (inside gt0 only): two true positives
+    gt = np.array([[0, 0, 20, 20], [10, 0, 30, 20]], np.float32)
+    dets = _det([[17, 9, 19, 11], [4, 9, 6, 11]], [0.9, 0.8])
+    assert list(centre_match_frame(dets, gt)) == [1, 0]
+
+
+def test_bearing_error_is_the_angle_between_the_rays_not_the_pixel_distance():
+    # 90 deg hfov over 200 px: focal length 100 px, optical axis through the continuous centre (100, 50)
+    cam = CameraModel.from_hfov(90.0, (200, 100))
+    on_axis = np.array([[95, 45, 105, 55]])  # centre (100, 50)
+    off_50 = np.array([[140, 45, 160, 55]])  # centre (150, 50): 50 px right, atan(0.5)
+    off_100 = np.array([[190, 45, 210, 55]])  # centre (200, 50): 100 px right, 45 deg
+    assert bearing_error_deg(cam, on_axis, off_50)[0] == pytest.approx(math.degrees(math.atan(0.5)), abs=1e-6)
+    # the same 50 px farther from the axis is a smaller angle: 45 - 26.57 = 18.43 deg
+    assert bearing_error_deg(cam, off_50, off_100)[0] == pytest.approx(45.0 - math.degrees(math.atan(0.5)), abs=1e-6)
+    below = np.array([[95, 95, 105, 105]])  # centre (100, 100): 50 px down
+    assert bearing_error_deg(cam, on_axis, below)[0] == pytest.approx(math.degrees(math.atan(0.5)), abs=1e-6)
+    assert bearing_error_deg(cam, on_axis, on_axis)[0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_score_clip_reports_centre_scores_and_bearing_errors_of_centre_matches():
+    cam = CameraModel.from_hfov(90.0, (200, 100))
+    labels = {0: np.array([[80, 30, 120, 70]], np.float32),  # centre (100, 50)
+              1: np.array([[80, 30, 120, 70]], np.float32),
+              2: np.array([[80, 30, 120, 70]], np.float32)}
+    dets = {
+        0: _det([[81, 31, 119, 69]], [0.9]),  # same centre, IoU 0.9: both TP, bearing error 0
+        1: _det([[105, 45, 115, 55]], [0.8]),  # centre (110, 50): centre TP only, atan(10/100)
+        2: _det([[150, 45, 160, 55]], [0.7]),  # centre outside: FP both ways
+    }
+    score = score_clip("c", dets, labels, camera=cam)
+    assert (score.tp, score.fp, score.fn) == (1, 2, 2)
+    assert (score.centre.tp, score.centre.fp, score.centre.fn) == (2, 1, 1)
+    assert score.centre.precision == pytest.approx(2 / 3) and score.centre.recall == pytest.approx(2 / 3)
+    np.testing.assert_allclose(sorted(score.bearing_err_deg), [0.0, math.degrees(math.atan(0.1))], atol=1e-6)
+    assert score.bearing_median_deg == pytest.approx(math.degrees(math.atan(0.1)) / 2, abs=1e-6)
+    report = score.as_dict()
+    assert report["centre"]["tp"] == 2 and report["bearing_error_deg"]["n"] == 2
+    # pooled with a clip without any match: the centre counts add up, the errors are kept
+    other = score_clip("d", {0: _det([[0, 0, 5, 5]], [0.95])}, {0: np.array([[80, 30, 120, 70]], np.float32)}, camera=cam)
+    pooled = pool([score, other])
+    assert (pooled.centre.tp, pooled.centre.fp, pooled.centre.fn) == (2, 2, 2)
+    assert len(pooled.bearing_err_deg) == 2
+    # ranked together: FP 0.95, TP 0.9, TP 0.8, FP 0.7 over 4 targets: precision 2/3 up to recall 1/2
+    assert pooled.centre.ap == pytest.approx((6 * 2 / 3) / 11)
+    no_camera = score_clip("c", dets, labels)
+    assert no_camera.centre.tp == 2 and math.isnan(no_camera.bearing_median_deg)
+    assert no_camera.as_dict()["bearing_error_deg"] == {"n": 0, "median": None, "p95": None}
 
 
 # ---------------------------------------------------------------- P/R/F and 11-point AP
@@ -138,9 +219,13 @@ def test_table_has_fixed_columns():
     a = score_clip("V_DRONE_013", {0: _det([[0, 0, 10, 10]], [0.9])}, gt)
     neg = score_clip("V_BIRD_031", {}, {0: np.zeros((0, 4), np.float32)})
     lines = format_table([a, neg], pool([a, neg])).splitlines()
-    assert lines[0].split() == ["clip", "frames", "gt", "tp", "fp", "fn", "P", "R", "F", "AP", "det%"]
-    assert lines[2].split() == ["V_DRONE_013", "1", "1", "1", "0", "0", "1.000", "1.000", "1.000", "1.000", "100.0"]
-    assert lines[3].split()[6:] == ["-", "-", "-", "-", "0.0"]
+    # the first eleven columns keep their places (docs and scripts read the POOLED line by them);
+    # the centre-in-box and bearing columns follow
+    assert lines[0].split() == ["clip", "frames", "gt", "tp", "fp", "fn", "P", "R", "F", "AP", "det%",
+                                "cP", "cR", "cF", "cAP", "deg50", "deg95"]
+    assert lines[2].split() == ["V_DRONE_013", "1", "1", "1", "0", "0", "1.000", "1.000", "1.000", "1.000", "100.0",
+                                "1.000", "1.000", "1.000", "1.000", "-", "-"]  # no camera: no bearing error
+    assert lines[3].split()[6:] == ["-", "-", "-", "-", "0.0", "-", "-", "-", "-", "-", "-"]
     assert lines[-1].split()[0] == "POOLED"
     assert len({len(line) for line in lines if not line.startswith("-")}) == 1
 
@@ -285,6 +370,29 @@ def test_eval_command_scores_csv_pairs_and_writes_json(tmp_path, capsys):
     assert (data["clips"][0]["tp"], data["clips"][0]["fp"], data["clips"][0]["fn"]) == (1, 1, 1)
     assert data["pooled"]["tp"] == 2 and data["pooled"]["gt"] == 3
     assert data["pooled"]["precision"] == pytest.approx(2 / 3)
+
+
+def test_eval_dets_bearing_error_needs_the_frame_size(tmp_path, capsys):
+    # a 40x20 label centred at (320, 256), the optical axis of a 640x512 frame; the detection's
+    # centre 16 px to the right: inside the box, IoU 280/920 (no IoU match). With the default
+    # hfov 80 deg, f = 320 / tan(40 deg) px, the bearing error is atan(16 / f).
+    (tmp_path / "A_labels.csv").write_text("frame,class,x,y,w,h\n0,DRONE,301,247,40,20\n")
+    _write_dets(tmp_path / "A.csv", {0: _det([[326, 246, 346, 266]], [0.9])})
+    args = ["eval", "--dets", str(tmp_path / "A.csv"), "--labels", str(tmp_path / "A_labels.csv")]
+    out = tmp_path / "scores.json"
+    assert main(args + ["--json", str(out)]) == 0
+    assert "no bearing error: give --frame-size" in capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert data["pooled"]["tp"] == 0 and data["pooled"]["centre"]["tp"] == 1
+    assert data["pooled"]["bearing_error_deg"]["n"] == 0
+    assert main(args + ["--frame-size", "640", "512", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    pooled = next(line.split() for line in printed.splitlines() if line.startswith("POOLED"))
+    expected = math.degrees(math.atan(16 / (320 / math.tan(math.radians(40)))))
+    assert pooled[11:15] == ["1.000", "1.000", "1.000", "1.000"] and float(pooled[15]) == pytest.approx(expected, abs=0.01)
+    data = json.loads(out.read_text())
+    assert data["pooled"]["bearing_error_deg"]["median"] == pytest.approx(expected, abs=1e-6)
+    assert main(args + ["--frame-size", "0", "512"]) == 2
 
 
 def test_eval_iou_threshold_is_an_option(tmp_path, capsys):

@@ -14,6 +14,8 @@ Usage: python training/build_cache.py [--crop 256] [--every 4]
        python training/build_cache.py --split negatives_train --name objects --objects   # birds etc.
 With --name, the drone clips of --split are written as extra sets for train_det/train_cls --synth
 (<name>_det.npz: images, xyxy with NaN where no drone; <name>_cls.npz: x, y); no negatives clips.
+--clips / --negatives name the clips instead of the splits (training/cv_train.py: every clip
+outside one cross-validation fold); --cache writes into another folder.
 """
 
 import argparse
@@ -106,12 +108,12 @@ def within_crop_reach(box, other, side=256):
             and abs((other[1] + other[3]) / 2 - (box[1] + box[3]) / 2) < reach)
 
 
-def save_extra_sets(name, cls_x, cls_y, det_images=None, det_xyxy=None):
+def save_extra_sets(name, cls_x, cls_y, det_images=None, det_xyxy=None, cache=CACHE):
     """Write the sets train_cls / train_det read with --synth: <name>_cls.npz (x, y) and, given
     crops, <name>_det.npz (images, xyxy with NaN where the crop holds no drone)."""
-    np.savez(os.path.join(CACHE, name + "_cls.npz"), x=np.asarray(cls_x), y=np.asarray(cls_y, np.uint8))
+    np.savez(os.path.join(cache, name + "_cls.npz"), x=np.asarray(cls_x), y=np.asarray(cls_y, np.uint8))
     if det_images is not None and len(det_images):
-        np.savez(os.path.join(CACHE, name + "_det.npz"), images=np.asarray(det_images),
+        np.savez(os.path.join(cache, name + "_det.npz"), images=np.asarray(det_images),
                  xyxy=np.asarray(det_xyxy, np.float32))
 
 
@@ -150,12 +152,21 @@ def main():
                          "(e.g. negatives_train), %d jittered per object every 2nd frame: <name>_cls.npz" % OBJECT_JITTERS)
     ap.add_argument("--ego-motion", type=int, default=None, metavar="SEED",
                     help="warp each clip by synthetic camera motion (seed SEED*1000 + clip number); needs --name")
+    ap.add_argument("--clips", nargs="+", default=None, metavar="CLIP",
+                    help="read these clips instead of the clips of --split (e.g. every drone clip outside a CV fold)")
+    ap.add_argument("--negatives", nargs="+", default=None, metavar="CLIP",
+                    help="negatives clips (birds, airliners, helicopters) instead of negatives_train")
+    ap.add_argument("--cache", default=CACHE, help="output folder (default training/cache)")
     args = ap.parse_args()
     if (args.ego_motion is not None or args.objects) and not args.name:
         ap.error("--ego-motion and --objects write an extra set: give --name too")
     rng = np.random.default_rng(0 if args.ego_motion is None else args.ego_motion)
-    os.makedirs(CACHE, exist_ok=True)
+    os.makedirs(args.cache, exist_ok=True)
     sp = splits()
+    if args.clips is not None:
+        sp[args.split] = args.clips
+    if args.negatives is not None:
+        sp["negatives_train"] = args.negatives
     pos, pos_xyxy, neg, cls_x, cls_y = [], [], [], [], []
     side = args.crop
     if args.objects:
@@ -166,7 +177,7 @@ def main():
                     cls_x.append(crop_patches(img, np.array(boxes)))
                     cls_y += [0] * len(boxes)
             print("objects %d/%d %s cls=%d" % (ci + 1, len(sp[args.split]), clip, len(cls_y)), flush=True)
-        save_extra_sets(args.name, np.concatenate(cls_x), cls_y)
+        save_extra_sets(args.name, np.concatenate(cls_x), cls_y, cache=args.cache)
         return
 
     for ci, clip in enumerate(sp[args.split]):
@@ -197,7 +208,7 @@ def main():
     if args.name:
         nan = np.full((len(neg), 4), np.nan, np.float32)
         save_extra_sets(args.name, np.concatenate(cls_x), cls_y, np.stack(pos + neg),
-                        np.concatenate([np.stack(pos_xyxy).astype(np.float32), nan]))
+                        np.concatenate([np.stack(pos_xyxy).astype(np.float32), nan]), cache=args.cache)
         print("done %s pos=%d neg=%d cls=%d (drone %d)" % (args.name, len(pos), len(neg), len(cls_y), int(np.sum(cls_y))))
         return
 
@@ -222,11 +233,11 @@ def main():
             prev = img
         print("neg %d/%d %s neg=%d cls=%d" % (ci + 1, len(sp["negatives_train"]), clip, len(neg), len(cls_y)), flush=True)
 
-    np.save(os.path.join(CACHE, "det_pos.npy"), np.stack(pos))
-    np.save(os.path.join(CACHE, "det_pos_xyxy.npy"), np.stack(pos_xyxy).astype(np.float32))
-    np.save(os.path.join(CACHE, "det_neg.npy"), np.stack(neg))
-    np.save(os.path.join(CACHE, "cls_x.npy"), np.concatenate(cls_x))
-    np.save(os.path.join(CACHE, "cls_y.npy"), np.array(cls_y, np.uint8))
+    np.save(os.path.join(args.cache, "det_pos.npy"), np.stack(pos))
+    np.save(os.path.join(args.cache, "det_pos_xyxy.npy"), np.stack(pos_xyxy).astype(np.float32))
+    np.save(os.path.join(args.cache, "det_neg.npy"), np.stack(neg))
+    np.save(os.path.join(args.cache, "cls_x.npy"), np.concatenate(cls_x))
+    np.save(os.path.join(args.cache, "cls_y.npy"), np.array(cls_y, np.uint8))
     print("done pos=%d neg=%d cls=%d (drone %d)" % (len(pos), len(neg), len(cls_y), int(np.sum(cls_y))))
 
 

@@ -19,7 +19,14 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.detect.patches import crop_patches  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
-from training.build_cache import crop_with, jitter, random_boxes, random_free_crop, save_extra_sets  # noqa: E402
+from training.build_cache import (  # noqa: E402
+    CACHE,
+    crop_with,
+    jitter,
+    random_boxes,
+    random_free_crop,
+    save_extra_sets,
+)
 
 
 def compensated_blobs(prev, img, homography, avoid, n):
@@ -37,7 +44,9 @@ def main():
     ap.add_argument("--crop", type=int, default=256)
     ap.add_argument("--name", default="synth", help="outputs <name>_det.npz and <name>_cls.npz")
     ap.add_argument("--target-px", type=float, nargs=2, default=(4.0, 24.0), help="drone size range")
+    ap.add_argument("--cache", default=CACHE, help="output folder (default training/cache)")
     args = ap.parse_args()
+    os.makedirs(args.cache, exist_ok=True)
     rng = np.random.default_rng(1)
     images, boxes, cls_x, cls_y = [], [], [], []
     side = args.crop
@@ -71,7 +80,7 @@ def main():
                     cls_y += [0] * len(neg)
             prev = img
         print("scene %d/%d seed=%d det=%d cls=%d" % (s + 1, args.scenes, seed, len(images), len(cls_y)), flush=True)
-    save_extra_sets(args.name, np.concatenate(cls_x), cls_y, np.stack(images), np.stack(boxes))
+    save_extra_sets(args.name, np.concatenate(cls_x), cls_y, np.stack(images), np.stack(boxes), cache=args.cache)
     print("done det=%d (with drone %d) cls=%d (drone %d)"
           % (len(images), int(np.isfinite(np.stack(boxes)[:, 0]).sum()), len(cls_y), int(np.sum(cls_y))))
 

@@ -38,10 +38,11 @@ PAD = 114
 
 
 class Sampler:
-    def __init__(self, size, scale_min, scale_max, neg_frac, seed, extra=None, extra_frac=0.3, neg_file="det_neg.npy"):
-        self.pos = np.load(os.path.join(CACHE, "det_pos.npy"), mmap_mode="r")
-        self.pos_xyxy = np.load(os.path.join(CACHE, "det_pos_xyxy.npy"))
-        self.neg = np.load(os.path.join(CACHE, neg_file), mmap_mode="r")
+    def __init__(self, size, scale_min, scale_max, neg_frac, seed, extra=None, extra_frac=0.3, neg_file="det_neg.npy",
+                 cache=CACHE):
+        self.pos = np.load(os.path.join(cache, "det_pos.npy"), mmap_mode="r")
+        self.pos_xyxy = np.load(os.path.join(cache, "det_pos_xyxy.npy"))
+        self.neg = np.load(os.path.join(cache, neg_file), mmap_mode="r")
         self.extra = extra  # optional (images, xyxy) of further crops, e.g. synthetic scenes (NaN xyxy: no drone)
         self.extra_frac = extra_frac
         self.size, self.smin, self.smax, self.neg_frac = size, scale_min, scale_max, neg_frac
@@ -159,7 +160,8 @@ def main():
     ap.add_argument("--init", default=None, help="start from this checkpoint's (.pt) or exported model's (.onnx) weights")
     ap.add_argument("--synth", nargs="*", default=[], help="npz files with extra crops: images [N,S,S,3], xyxy [N,4] (NaN = no drone)")
     ap.add_argument("--synth-frac", type=float, default=0.3)
-    ap.add_argument("--neg-file", default="det_neg.npy", help="drone-free crops in training/cache/")
+    ap.add_argument("--neg-file", default="det_neg.npy", help="drone-free crops in --cache")
+    ap.add_argument("--cache", default=CACHE, help="folder of det_pos.npy, det_pos_xyxy.npy, det_neg.npy (build_cache.py)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     run = os.path.join(HERE, "runs", args.name)
@@ -175,7 +177,8 @@ def main():
     if args.synth:
         files = [np.load(path) for path in args.synth]
         extra = (np.concatenate([z["images"] for z in files]), np.concatenate([z["xyxy"] for z in files]))
-    sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra, extra_frac=args.synth_frac, neg_file=args.neg_file)
+    sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra, extra_frac=args.synth_frac, neg_file=args.neg_file,
+                      cache=args.cache)
     if step == 0 and args.init and args.init.endswith(".onnx"):
         from training.onnx_init import load_onnx_detector, max_abs_diff
 

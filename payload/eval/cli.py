@@ -5,7 +5,10 @@ Two modes:
 - ``--split val[,negatives_val]`` (Halmstad splits.json) or ``--clips a.mp4 ...``: run the
   detector over each clip, then score; ``--ego-motion SEED`` warps those recordings (frames and
   labels) as if the camera moved.
-Both print one row per clip and a POOLED row (counts summed, detections ranked together).
+Both print one row per clip and a POOLED row (counts summed, detections ranked together):
+the paper's P/R/F/AP at IoU > 0.5, then the same by centre-in-box matching (cP cR cF cAP) and
+the median and 95th percentile of the bearing error of its true positives in degrees (deg50,
+deg95; camera model from the config's camera section at each clip's frame size).
 """
 
 import dataclasses
@@ -16,7 +19,7 @@ import os
 import sys
 import tempfile
 from dataclasses import dataclass
-from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from payload.errors import DataError
 from payload.eval.labels import load_labels
@@ -181,7 +184,30 @@ def with_ego_motion(clips: Sequence[ClipSpec], seed: int) -> List[ClipSpec]:
     return warped
 
 
-def score_detection_files(dets: Sequence[str], labels: Sequence[str], iou_match: float = IOU_MATCH) -> List[ClipScore]:
+def clip_frame_size(clip: ClipSpec) -> Tuple[int, int]:
+    """(width, height) of the clip's frames: the synthetic scene's, else the video's header."""
+    if clip.capture is not None and clip.capture.source == "synthetic":
+        return int(clip.capture.synthetic.width), int(clip.capture.synthetic.height)
+    import cv2
+
+    cap = cv2.VideoCapture(clip.video)
+    size = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    cap.release()
+    if min(size) <= 0:
+        raise UsageError("%s: cannot read the video's frame size (for the bearing error)" % clip.video)
+    return size
+
+
+def camera_for(cfg) -> Callable[[Tuple[int, int]], Any]:
+    """Frame size -> the config's camera model at that size (payload.geometry.CameraModel)."""
+    from payload.geometry import CameraModel
+
+    return lambda size_wh: CameraModel.from_config(cfg.camera, size_wh)
+
+
+def score_detection_files(dets: Sequence[str], labels: Sequence[str], iou_match: float = IOU_MATCH,
+                          camera=None) -> List[ClipScore]:
+    """Score existing CSVs; ``camera``: the camera model of their frames (None: no bearing error)."""
     if len(dets) != len(labels):
         raise UsageError("--dets has %d files but --labels has %d (give one label file or folder per CSV)"
                          % (len(dets), len(labels)))
@@ -189,43 +215,58 @@ def score_detection_files(dets: Sequence[str], labels: Sequence[str], iou_match:
     for dets_path, labels_path in zip(dets, labels):
         gt = load_labels(labels_path)
         found = read_detections_csv(dets_path)
-        scores.append(score_clip(os.path.splitext(os.path.basename(dets_path))[0], found, gt, iou_match=iou_match))
+        scores.append(score_clip(os.path.splitext(os.path.basename(dets_path))[0], found, gt, iou_match=iou_match,
+                                 camera=camera))
     return scores
 
 
-def score_clips(clips: Sequence[ClipSpec], detect: DetectFn, iou_match: float = IOU_MATCH) -> List[ClipScore]:
-    """Run ``detect`` (clip -> frame -> Detections, every frame present) and score each clip."""
+def score_clips(clips: Sequence[ClipSpec], detect: DetectFn, iou_match: float = IOU_MATCH,
+                camera: Optional[Callable[[Tuple[int, int]], Any]] = None) -> List[ClipScore]:
+    """Run ``detect`` (clip -> frame -> Detections, every frame present) and score each clip;
+    ``camera``: frame size -> camera model, for the bearing error (None: not measured)."""
     labels = {clip.name: load_labels(clip.labels) for clip in clips}  # bad labels fail before any detection
     scores = []
     for clip in clips:
         found = detect(clip)
         frames = max(found) + 1 if found else 0
         gt = labels[clip.name] if clip.ego_motion is None else clip.ego_motion.labels(labels[clip.name])
-        score = score_clip(clip.name, found, gt, frames=frames, iou_match=iou_match)
-        log.info("eval clip=%s frames=%d gt=%d tp=%d fp=%d", clip.name, score.frames, score.gt, score.tp, score.fp)
+        model = camera(clip_frame_size(clip)) if camera is not None else None
+        score = score_clip(clip.name, found, gt, frames=frames, iou_match=iou_match, camera=model)
+        log.info("eval clip=%s frames=%d gt=%d tp=%d fp=%d centre_tp=%d", clip.name, score.frames, score.gt, score.tp,
+                 score.fp, score.centre.tp if score.centre is not None else -1)
         scores.append(score)
     return scores
 
 
-def _cell(value: float, percent: bool = False) -> str:
+def _cell(value: float, percent: bool = False, fmt: str = "%.3f") -> str:
     if isinstance(value, float) and math.isnan(value):
         return "-"
-    return "%.1f" % (100.0 * value) if percent else "%.3f" % value
+    return "%.1f" % (100.0 * value) if percent else fmt % value
+
+
+NAN = float("nan")
+TABLE_LEGEND = ("P R F AP: IoU > %g; cP cR cF cAP: centre of the box inside the labelled box; deg50 deg95: "
+                "bearing error of those centre matches, median and 95th percentile, degrees")
 
 
 def format_table(scores: Sequence[ClipScore], pooled: Optional[ClipScore] = None) -> str:
-    """Fixed-column text table: one row per clip, then the pooled row."""
+    """Fixed-column text table: one row per clip, then the pooled row. The first eleven columns
+    (clip .. det%) keep their order; the centre-in-box and bearing columns follow."""
     rows = list(scores) + ([pooled] if pooled is not None else [])
     width = max([len("clip")] + [len(s.name) for s in rows])
-    header = "%-*s %7s %6s %6s %6s %6s %6s %6s %6s %6s %6s" % (
-        width, "clip", "frames", "gt", "tp", "fp", "fn", "P", "R", "F", "AP", "det%")
+    header = "%-*s %7s %6s %6s %6s %6s %6s %6s %6s %6s %6s %6s %6s %6s %6s %6s %6s" % (
+        width, "clip", "frames", "gt", "tp", "fp", "fn", "P", "R", "F", "AP", "det%",
+        "cP", "cR", "cF", "cAP", "deg50", "deg95")
     lines = [header, "-" * len(header)]
     for i, s in enumerate(rows):
         if pooled is not None and i == len(rows) - 1:
             lines.append("-" * len(header))
-        lines.append("%-*s %7d %6d %6d %6d %6d %6s %6s %6s %6s %6s" % (
+        c = s.centre
+        lines.append("%-*s %7d %6d %6d %6d %6d %6s %6s %6s %6s %6s %6s %6s %6s %6s %6s %6s" % (
             width, s.name, s.frames, s.gt, s.tp, s.fp, s.fn, _cell(s.precision), _cell(s.recall),
-            _cell(s.f1), _cell(s.ap), _cell(s.frames_with_detections, percent=True)))
+            _cell(s.f1), _cell(s.ap), _cell(s.frames_with_detections, percent=True),
+            _cell(c.precision if c else NAN), _cell(c.recall if c else NAN), _cell(c.f1 if c else NAN),
+            _cell(c.ap if c else NAN), _cell(s.bearing_median_deg, fmt="%.2f"), _cell(s.bearing_p95_deg, fmt="%.2f")))
     return "\n".join(lines)
 
 
@@ -254,12 +295,13 @@ def _glad_detector(args, cfg) -> DetectFn:
 def main_eval(args) -> int:
     try:
         with tempfile.TemporaryDirectory(prefix="glad-eval-") as tmp:
-            scores = _scores(args, tmp)
+            scores, camera_note = _scores(args, tmp)
     except UsageError as exc:
         print("glad-payload eval: %s" % exc, file=sys.stderr)
         return 2
     pooled = pool(scores)
     print(format_table(scores, pooled))
+    print(TABLE_LEGEND % args.iou + " (%s)" % camera_note)
     if args.iou != IOU_MATCH:
         print("(matched at IoU > %g, not the paper's 0.5)" % args.iou)
     if args.json:
@@ -268,7 +310,14 @@ def main_eval(args) -> int:
     return 0
 
 
-def _scores(args, tmp: str) -> List[ClipScore]:
+def describe_camera(cfg) -> str:
+    """How the bearing error's camera model was made, for the printed legend."""
+    if cfg.camera.matrix is not None:
+        return "camera: calibrated matrix %s%s" % (list(cfg.camera.matrix), " with distortion" if cfg.camera.distortion else "")
+    return "camera: camera.hfov_deg %g at each clip's frame size, no calibration" % cfg.camera.hfov_deg
+
+
+def _scores(args, tmp: str) -> Tuple[List[ClipScore], str]:
     if args.ego_motion is not None and not (args.split or args.clips):
         raise UsageError("--ego-motion warps recordings: give it with --split or --clips")
     if not 0.0 < args.iou < 1.0:
@@ -277,11 +326,13 @@ def _scores(args, tmp: str) -> List[ClipScore]:
                                         ("--synthetic", args.synthetic)) if given]
     if len(sources) > 1:
         raise UsageError("give one of --split, --clips, --synthetic, not %s" % " and ".join(sources))
+    from payload.config import load_config
+
     if sources:
         if args.dets:
             raise UsageError("--dets scores existing CSVs; it does not combine with %s" % sources[0])
-        from payload.config import load_config
-
+        if args.frame_size is not None:
+            raise UsageError("--frame-size is for --dets; %s reads each clip's frame size" % sources[0])
         cfg = load_config(args.config)
         if args.split:
             clips = split_clips(find_splits(args.splits), args.split)
@@ -291,7 +342,14 @@ def _scores(args, tmp: str) -> List[ClipScore]:
             clips = synthetic_clips(cfg, tmp, args.frames, args.synthetic, args.target_px)
         if args.ego_motion is not None:
             clips = with_ego_motion(clips, args.ego_motion)
-        return score_clips(clips, _glad_detector(args, cfg), args.iou)
+        return score_clips(clips, _glad_detector(args, cfg), args.iou, camera_for(cfg)), describe_camera(cfg)
     if args.dets:
-        return score_detection_files(args.dets, args.labels, args.iou)
+        cfg = load_config(args.config)
+        if args.frame_size is None:
+            return (score_detection_files(args.dets, args.labels, args.iou),
+                    "no bearing error: give --frame-size W H of the --dets clips")
+        if min(args.frame_size) <= 0:
+            raise UsageError("--frame-size %d %d: expected positive width and height" % tuple(args.frame_size))
+        camera = camera_for(cfg)(tuple(args.frame_size))
+        return score_detection_files(args.dets, args.labels, args.iou, camera), describe_camera(cfg)
     raise UsageError("nothing to score: give --dets with --labels, --split NAME, --clips VIDEO... or --synthetic SEED...")

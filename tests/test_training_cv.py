@@ -1,0 +1,69 @@
+"""training/cv_train.py: which clips a fold trains on, and stages that skip, rerun and fail loudly."""
+
+import os
+import sys
+
+import pytest
+
+pytest.importorskip("torch")  # training/ needs the training environment
+
+from payload.eval.folds import Folds  # noqa: E402
+from training.cv_train import Log, run_stage, select  # noqa: E402
+
+NAMES = ["V_DRONE_001", "V_DRONE_031", "IR_DRONE_001", "IR_DRONE_041", "V_BIRD_001", "V_AIRPLANE_031",
+         "IR_BIRD_001", "IR_HELICOPTER_021"]
+
+
+def test_a_fold_trains_on_no_clip_it_holds_out():
+    folds = Folds({"k": 2, "block_size": 10, "kinds": {
+        kind: [[1, 20], [21, 999]] for kind in ("V_DRONE", "IR_DRONE", "V_BIRD", "V_AIRPLANE", "IR_BIRD", "IR_HELICOPTER")}})
+    outside = folds.training(NAMES, 0)
+    assert select(outside, "V", False) == ["V_DRONE_031"]
+    assert select(outside, "IR", False) == ["IR_DRONE_041"]
+    assert select(outside, "V", True) == ["V_AIRPLANE_031"]
+    assert select(outside, "IR", True) == ["IR_HELICOPTER_021"]
+    held = set(folds.split(NAMES)[0])
+    assert held == {"V_DRONE_001", "IR_DRONE_001", "V_BIRD_001", "IR_BIRD_001"}
+    assert not held & set(outside)
+    assert select(NAMES, "V", False, limit=1) == ["V_DRONE_001"]
+
+
+def _write(path, text):
+    return [sys.executable, "-c", "open(%r, 'w').write(%r)" % (str(path), text)]
+
+
+def _write_if_absent(path, text):
+    """A command that fails when ``path`` is still there (a stage that would resume from it)."""
+    return [sys.executable, "-c", "import os, sys\nif os.path.exists(%r): sys.exit(1)\nopen(%r, 'w').write(%r)"
+            % (str(path), str(path), text)]
+
+
+def test_stage_runs_once_then_skips_and_reruns_when_its_command_or_input_changes(tmp_path):
+    log = Log(str(tmp_path / "log.txt"))
+    out, marker, ckpt = tmp_path / "out.txt", tmp_path / ".done", tmp_path / "ckpt"
+    ckpt.write_text("1")
+    os.utime(str(ckpt), (1000, 1000))
+    run_stage(log, "s", str(marker), _write(out, "a"), [str(out)], inputs=[str(ckpt)])
+    assert out.read_text() == "a"
+    run_stage(log, "s", str(marker), _write(out, "a"), [str(out)], inputs=[str(ckpt)])
+    assert "s: done before, skipped" in (tmp_path / "log.txt").read_text()
+    run_stage(log, "s", str(marker), _write(out, "b"), [str(out)], inputs=[str(ckpt)])  # another command
+    assert out.read_text() == "b"
+    # the checkpoint is newer than the output: the output is removed (a training stage must not
+    # resume from a checkpoint of the old input) and the stage runs again
+    out.write_text("stale")
+    os.utime(str(out), (500, 500))
+    run_stage(log, "s", str(marker), _write_if_absent(out, "fresh"), [str(out)], inputs=[str(ckpt)])
+    assert out.read_text() == "fresh"
+    assert "is older than its input, removed" in (tmp_path / "log.txt").read_text()
+
+
+def test_a_failed_stage_stops_the_driver_and_leaves_no_marker(tmp_path):
+    log = Log(str(tmp_path / "log.txt"))
+    with pytest.raises(SystemExit):
+        run_stage(log, "bad", str(tmp_path / ".done"), [sys.executable, "-c", "raise SystemExit(3)"], [])
+    with pytest.raises(SystemExit):
+        run_stage(log, "silent", str(tmp_path / ".done"), [sys.executable, "-c", "pass"], [str(tmp_path / "none")])
+    assert not (tmp_path / ".done").exists()
+    text = (tmp_path / "log.txt").read_text()
+    assert "bad: FAILED with exit status 3" in text and "silent: FAILED: no " in text

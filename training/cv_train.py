@@ -1,0 +1,234 @@
+"""Train one set of GLAD networks per cross-validation fold, each without that fold's clips.
+
+For every fold k of payload/eval/folds.json (whole blocks of consecutive clip numbers per clip
+kind, issue 16) this builds fold k's training caches from every clip OUTSIDE fold k, trains
+the global detector, the local detector and the classifier with the shipped recipe shortened
+(the same step counts for every fold), and exports them to OUT/fold{k}/glad_global.onnx,
+glad_local.onnx, glad_classifier.onnx, which ``glad-payload cv --fold-models OUT`` evaluates on
+fold k's clips.
+
+The shortened recipe (payload/models/MODEL_CARD.md has the shipped one), per fold:
+  caches   build_cache.py over the visible drone clips and the visible negatives clips outside
+           the fold (det_pos / det_neg / cls_*); build_cache.py --name ir over the thermal drone
+           clips outside the fold; with --ir-negatives the thermal negatives clips join the
+           negatives. Synthetic scenes (no Halmstad pixels, so shared by all folds):
+           build_synth_cache.py seeds 1000+ (4-24 px) and 1100+ (4-14 px), --synth-scenes each.
+  global   train_det.py from scratch (no shipped weights: they saw every fold), width 1.5,
+           160 px samples, scale 0.45-1.5, 35 % drone-free, extra sets (synthetic, thermal) at
+           40 %, lr 3e-3 cosine, --glb-steps (default 2500; shipped: ~12,700 over five runs).
+  local    train_det.py from the fold's global detector, scale 0.7-1.4, 30 % drone-free, extra
+           sets at 55 %, lr 7e-4, --loc-steps (default 1000).
+  classifier train_cls.py from scratch on the fold's patches + synthetic + thermal patches,
+           --cls-steps (default 2500; shipped cls5: 5,000).
+  Left out of the shortened recipe: the mined hard negatives (mined1, synth_det_mined: mined
+  with a detector trained on every clip) and the ego-motion set (ego1).
+
+Every stage is skipped once done (a marker with its command line beside its output; a changed
+command runs it again), the training stages resume from their last checkpoint (train_*.py
+--resume, saved every 200 steps), so after any interruption the same command continues:
+
+  nice -n 15 python training/cv_train.py --log training/runs/cv/base/train.log &    # all folds
+  python training/cv_train.py --folds-only 0 --glb-steps 20 --loc-steps 10 --cls-steps 20 \\
+      --tag smoke --max-clips 2 --synth-scenes 1                                     # smoke test
+
+Outputs (gitignored): caches under training/cache/cv/, runs and models under
+training/runs/cv/<tag>/ (models: training/runs/cv/<tag>/models/fold{k}/).
+"""
+
+import argparse
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from typing import List, Optional, Sequence
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+sys.path.insert(0, REPO)
+from payload.eval.folds import clip_frames, load_folds, parse_clip  # noqa: E402
+from training.halmstad import HALMSTAD  # noqa: E402
+
+PY = sys.executable
+_child: Optional[subprocess.Popen] = None
+_stopping: Optional[int] = None
+
+
+class Log:
+    def __init__(self, path: Optional[str]) -> None:
+        self.path = path
+        if path:
+            os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+
+    def __call__(self, text: str) -> None:
+        line = "%s cv_train: %s" % (time.strftime("%Y-%m-%d %H:%M:%S"), text)
+        print(line, flush=True)
+        if self.path:
+            with open(self.path, "a", encoding="utf-8") as handle:
+                handle.write(line + "\n")
+
+
+def _stop(signum, _frame):
+    """SIGTERM/SIGINT: passed on to the running stage (so nothing keeps training unwatched); the
+    driver stops once it has exited (run_stage), or at once between stages."""
+    global _stopping
+    _stopping = signum
+    if _child is None:
+        raise SystemExit(128 + signum)
+    _child.send_signal(signum)
+
+
+def run_stage(log: Log, name: str, marker: str, argv: List[str], outputs: List[str],
+              inputs: Sequence[str] = ()) -> None:
+    """Run ``argv`` unless ``marker`` records this very command as done and its outputs exist.
+    Outputs older than one of ``inputs`` (the checkpoint a stage starts from or exports) are
+    removed first and the stage runs again from the new input, not resumed from the stale one."""
+    global _child
+    command = " ".join(shlex.quote(a) for a in argv)
+    stale = [o for o in outputs if os.path.exists(o)
+             and any(os.path.exists(i) and os.path.getmtime(i) > os.path.getmtime(o) for i in inputs)]
+    for path in stale:
+        log("%s: %s is older than its input, removed" % (name, path))
+        os.remove(path)
+    if os.path.isfile(marker) and all(os.path.exists(p) for p in outputs):
+        with open(marker, encoding="utf-8") as handle:
+            if handle.read().strip() == command:
+                log("%s: done before, skipped" % name)
+                return
+    log("%s: start: %s" % (name, command if len(command) < 400 else command[:400] + " ..."))
+    started = time.time()
+    out = open(log.path, "a", encoding="utf-8") if log.path else None
+    try:
+        _child = subprocess.Popen(argv, cwd=REPO, stdout=out or None, stderr=subprocess.STDOUT if out else None)
+        rc = _child.wait()
+    finally:
+        _child = None
+        if out is not None:
+            out.close()
+    if _stopping is not None:
+        log("%s: stopped by signal %d (exit status %d); the same command resumes" % (name, _stopping, rc))
+        raise SystemExit(128 + _stopping)
+    if rc != 0:
+        log("%s: FAILED with exit status %d" % (name, rc))
+        raise SystemExit(1)
+    missing = [p for p in outputs if not os.path.exists(p)]
+    if missing:
+        log("%s: FAILED: no %s" % (name, ", ".join(missing)))
+        raise SystemExit(1)
+    os.makedirs(os.path.dirname(marker), exist_ok=True)
+    with open(marker, "w", encoding="utf-8") as handle:
+        handle.write(command + "\n")
+    log("%s: done in %.0f s" % (name, time.time() - started))
+
+
+def select(names: Sequence[str], sensor: str, negatives: bool, limit: int = 0) -> List[str]:
+    """The clips of one sensor ('V' or 'IR'): its drone clips, or its negatives (birds, airliners,
+    helicopters); the first ``limit`` when > 0."""
+    picked = [n for n in names if parse_clip(n)[0].split("_", 1)[0] == sensor
+              and parse_clip(n)[0].endswith("_DRONE") != negatives]
+    return picked[:limit] if limit else picked
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--tag", default="base", help="names the runs and models folder: training/runs/cv/TAG/")
+    ap.add_argument("--folds", default=None, help="fold definition (default payload/eval/folds.json)")
+    ap.add_argument("--folds-only", type=int, nargs="*", default=None, metavar="K", help="train only these folds")
+    ap.add_argument("--glb-steps", type=int, default=2500)
+    ap.add_argument("--loc-steps", type=int, default=1000)
+    ap.add_argument("--cls-steps", type=int, default=2500)
+    ap.add_argument("--synth-scenes", type=int, default=30, help="synthetic scenes per synthetic set (two sets)")
+    ap.add_argument("--ir-negatives", action="store_true", help="thermal negatives clips join the negatives")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads per training run")
+    ap.add_argument("--max-clips", type=int, default=0, help="at most N clips per list (smoke tests only)")
+    ap.add_argument("--log", default=None, help="append progress here as well as to stdout")
+    args = ap.parse_args(argv)
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    log = Log(args.log)
+
+    folds = load_folds(args.folds)
+    names = sorted(clip_frames(HALMSTAD))
+    if not names:
+        log("no clips under %s" % HALMSTAD)
+        return 2
+    smoke = "-smoke%d" % args.max_clips if args.max_clips else ""
+    cache_root = os.path.join(HERE, "cache", "cv" + smoke)
+    common = os.path.join(cache_root, "common-s%d" % args.synth_scenes)
+    run_root = os.path.join(HERE, "runs", "cv", args.tag)
+    models_root = os.path.join(run_root, "models")
+    log("tag=%s folds=%s (k=%d) steps glb=%d loc=%d cls=%d synth_scenes=%d ir_negatives=%s clips=%d"
+        % (args.tag, folds.source, folds.k, args.glb_steps, args.loc_steps, args.cls_steps, args.synth_scenes,
+           args.ir_negatives, len(names)))
+
+    for name, extra in (("synth", []), ("synth2", ["--first-seed", "1100", "--target-px", "4", "14"])):
+        run_stage(log, "common %s" % name, os.path.join(common, ".done-" + name),
+                  [PY, "training/build_synth_cache.py", "--cache", common, "--name", name,
+                   "--scenes", str(args.synth_scenes)] + extra,
+                  [os.path.join(common, name + "_det.npz"), os.path.join(common, name + "_cls.npz")])
+
+    for fold in (args.folds_only if args.folds_only is not None else range(folds.k)):
+        if not 0 <= fold < folds.k:
+            log("--folds-only %d: no such fold (k=%d)" % (fold, folds.k))
+            return 2
+        outside = folds.training(names, fold)
+
+        v_drones = select(outside, "V", False, args.max_clips)
+        ir_drones = select(outside, "IR", False, args.max_clips)
+        negatives = select(outside, "V", True, args.max_clips)
+        if args.ir_negatives:
+            negatives += select(outside, "IR", True, args.max_clips)
+        held = sorted(set(names) - set(outside))
+        log("fold %d: holds out %d clips; trains on %d visible drone, %d negatives (%s), %d thermal drone clips"
+            % (fold, len(held), len(v_drones), len(negatives), "visible + thermal" if args.ir_negatives else "visible",
+               len(ir_drones)))
+        cache = os.path.join(cache_root, "fold%d%s" % (fold, "-irneg" if args.ir_negatives else ""))
+        runs = os.path.join(run_root, "fold%d" % fold)
+        models = os.path.join(models_root, "fold%d" % fold)
+        os.makedirs(models, exist_ok=True)
+        with open(os.path.join(models, "clips.json"), "w", encoding="utf-8") as handle:
+            json.dump({"fold": fold, "held_out": held, "visible_drones": v_drones, "negatives": negatives,
+                       "thermal_drones": ir_drones}, handle, indent=1)
+        main_cache = ["det_pos.npy", "det_pos_xyxy.npy", "det_neg.npy", "cls_x.npy", "cls_y.npy"]
+        run_stage(log, "fold %d cache" % fold, os.path.join(cache, ".done-cache"),
+                  [PY, "training/build_cache.py", "--cache", cache, "--clips"] + v_drones + ["--negatives"] + negatives,
+                  [os.path.join(cache, f) for f in main_cache])
+        run_stage(log, "fold %d thermal cache" % fold, os.path.join(cache, ".done-ir"),
+                  [PY, "training/build_cache.py", "--cache", cache, "--split", "ir_train", "--name", "ir", "--clips"]
+                  + ir_drones, [os.path.join(cache, "ir_det.npz"), os.path.join(cache, "ir_cls.npz")])
+
+        extra_det = [os.path.join(common, "synth_det.npz"), os.path.join(common, "synth2_det.npz"),
+                     os.path.join(cache, "ir_det.npz")]
+        extra_cls = [os.path.join(common, "synth_cls.npz"), os.path.join(common, "synth2_cls.npz"),
+                     os.path.join(cache, "ir_cls.npz")]
+        det_common = ["--cache", cache, "--width", "1.5", "--size", "160", "--wh-weight", "2",
+                      "--threads", str(args.threads), "--resume", "--synth"] + extra_det
+        rel = os.path.relpath(runs, os.path.join(HERE, "runs"))
+        glb = os.path.join(runs, "glb", "last.pt")
+        run_stage(log, "fold %d global detector" % fold, os.path.join(runs, "glb", ".done"),
+                  [PY, "training/train_det.py", "--name", os.path.join(rel, "glb"), "--steps", str(args.glb_steps),
+                   "--lr", "3e-3", "--scale-max", "1.5", "--neg-frac", "0.35", "--synth-frac", "0.4"] + det_common,
+                  [glb])
+        loc = os.path.join(runs, "loc", "last.pt")
+        run_stage(log, "fold %d local detector" % fold, os.path.join(runs, "loc", ".done"),
+                  [PY, "training/train_det.py", "--name", os.path.join(rel, "loc"), "--init", glb,
+                   "--steps", str(args.loc_steps), "--lr", "7e-4", "--scale-min", "0.7", "--scale-max", "1.4",
+                   "--neg-frac", "0.3", "--synth-frac", "0.55"] + det_common, [loc], inputs=[glb])
+        cls = os.path.join(runs, "cls", "last.pt")
+        run_stage(log, "fold %d classifier" % fold, os.path.join(runs, "cls", ".done"),
+                  [PY, "training/train_cls.py", "--name", os.path.join(rel, "cls"), "--steps", str(args.cls_steps),
+                   "--cache", cache, "--threads", str(args.threads), "--resume", "--synth"] + extra_cls, [cls])
+        for kind, ckpt, out in (("det", glb, "glad_global.onnx"), ("det", loc, "glad_local.onnx"),
+                                ("cls", cls, "glad_classifier.onnx")):
+            target = os.path.join(models, out)
+            run_stage(log, "fold %d export %s" % (fold, out), os.path.join(models, ".done-" + out),
+                      [PY, "training/export.py", kind, ckpt, target], [target], inputs=[ckpt])
+        log("fold %d: models in %s" % (fold, models))
+    log("finished: glad-payload cv --fold-models %s" % models_root)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
