@@ -29,9 +29,5 @@ class ModelError(PayloadError):
     """An ONNX model file is missing or does not have the expected inputs/outputs."""
 
 
-class LinkLost(PayloadError):
-    """The MAVLink connection failed or the autopilot stopped answering."""
-
-
 class DataError(PayloadError):
     """A detections CSV or label file is missing or malformed (the message names file:line)."""

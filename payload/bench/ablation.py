@@ -135,6 +135,3 @@ def run_row(cfg: Config, row: Row, clips: Sequence[ClipSpec], limit: int = 0) ->
         module_runs=dict(runs),
     )
 
-
-def run_ablation(cfg: Config, clips: Sequence[ClipSpec], rows: Sequence[Row], limit: int = 0) -> List[RowResult]:
-    return [run_row(cfg, row, clips, limit) for row in rows]
