@@ -32,3 +32,12 @@ def mavproxy_script():
     if importlib.util.find_spec("MAVProxy") is None or script is None:
         pytest.skip("MAVProxy is not installed (pip install --no-deps MAVProxy pyserial)")
     return script
+
+
+@pytest.fixture
+def fakes():
+    """Fake autopilots started by a test (test_mavlink.start_fake), killed after it."""
+    started = []
+    yield started
+    for f in started:
+        f.kill()

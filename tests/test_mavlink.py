@@ -155,14 +155,6 @@ def link_cfg(connection, **kw):
     return MavlinkConfig(**base)
 
 
-@pytest.fixture
-def fakes():
-    started = []
-    yield started
-    for f in started:
-        f.kill()
-
-
 def start_fake(fakes, tmp_path, listen, *extra, name="fake"):
     f = FakeAutopilot(tmp_path, listen, *extra, name=name)
     fakes.append(f)

@@ -31,15 +31,6 @@ from payload.mavlink.link import MavlinkLink
 LOCAL = "127.0.0.1"
 
 
-@pytest.fixture
-def fakes():
-    """Fake autopilots started by a test (start_fake), killed after it."""
-    started = []
-    yield started
-    for f in started:
-        f.kill()
-
-
 class Peer:
     """A MAVLink endpoint: a UDP socket on 127.0.0.1 and pymavlink's MAVLink 2 encoder/decoder."""
 

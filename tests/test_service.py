@@ -78,6 +78,7 @@ def stop(proc, timeout_s=20):
         return proc.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
         proc.kill()
+        proc.wait()
         raise
 
 

@@ -3,6 +3,7 @@ process, a real SIGHUP, real files (corrupt images, a config that is not UTF-8, 
 /dev/full), a real MAVLink peer over UDP sending NaN attitudes, and systemd's notify socket."""
 
 import csv
+import functools
 import json
 import math
 import os
@@ -17,6 +18,7 @@ import time
 import cv2
 import numpy as np
 import pytest
+import test_service
 import yaml
 from onnx_factories import bright_spot_detector, failing_detector
 from test_service_lifecycle import NotifyListener, log_text, wait_log
@@ -53,15 +55,7 @@ def start(args, log_path, env=None, probe=None):
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=open(log_path, "w"))
 
 
-def stop(proc, timeout_s=30):
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-    try:
-        return proc.wait(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        raise
+stop = functools.partial(test_service.stop, timeout_s=30)
 
 
 def wait_until(predicate, timeout_s, what, listener=None):
