@@ -203,12 +203,8 @@ class Service:
     def _bearing(self, frame: Frame, result: GladResult) -> Optional[Bearing]:
         if result.target is None:
             return None
-        attitude = None
-        if self.link is not None:
-            try:
-                attitude = self.link.attitude_at(frame.t_capture_ns)
-            except (ValueError, ArithmeticError):  # interpolating a non-finite yaw: as no attitude
-                self.bearings.attitude_not_finite += 1
+        # The link drops non-finite ATTITUDE at the door; the bearing model still refuses a non-finite result.
+        attitude = self.link.attitude_at(frame.t_capture_ns) if self.link is not None else None
         return self.bearings.bearing(result.target, frame.size_wh, attitude)
 
     def _watchdog(self) -> None:
