@@ -302,9 +302,8 @@ class Service:
         applied += self._apply_logging(new.logging)
         if self.publisher is not None:
             applied += self.publisher.apply(new.mavlink.outputs)
-        link_apply = getattr(self.link, "apply", None)
-        if link_apply is not None:
-            applied += link_apply(new.mavlink)
+        if self.link is not None:
+            applied += self.link.apply(new.mavlink)
         return applied
 
     def _apply_logging(self, cfg: LoggingConfig) -> List[str]:

@@ -177,13 +177,6 @@ def test_reload_applies_every_reloadable_key(reloaded):
     assert "Traceback" not in log
 
 
-def _link_has_apply():
-    from payload.mavlink.link import MavlinkLink
-
-    return hasattr(MavlinkLink, "apply")
-
-
-@pytest.mark.xfail(condition=not _link_has_apply(), strict=True, reason="needs MavlinkLink.apply from wip/link")
 def test_reload_applies_mavlink_keys_to_the_link(reloaded):
     new_values, running, log = reloaded
     keys = [k for k in new_values if k.startswith("mavlink.") and not k.startswith("mavlink.outputs.")]

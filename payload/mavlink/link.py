@@ -50,7 +50,7 @@ from dataclasses import dataclass
 from typing import Any, Deque, Dict, List, Optional, Tuple
 
 # The connection check and the key reading live in the config layer, so that check-config runs them too.
-from payload.config import MavlinkConfig, load_signing_key  # noqa: F401  (re-exported)
+from payload.config import MavlinkConfig, flat_config, load_signing_key, section_changes  # noqa: F401  (load_signing_key re-exported)
 from payload.config import check_connection as _check_connection
 from payload.geometry import Attitude
 from payload.mavlink.ratelog import RateLimitedLog
@@ -232,23 +232,25 @@ class MavlinkLink:
         Keys that need a restart (connection, baud, ids, component_type, signing) keep their
         running values here, whatever ``cfg`` says; ``outputs`` belongs to the publisher."""
         old = self.cfg
-        changed = [k for k in LIVE_KEYS if _get(old, k) != _get(cfg, k)]
+        live = {"mavlink." + k for k in LIVE_KEYS}
+        changed = [k for k in section_changes(old, cfg, "mavlink") if k in live]
         restart_only = {k: getattr(old, k) for k in _KEPT_KEYS}
         with self._lock:
             self.cfg = cfg.model_copy(update=restart_only)
-            if "heartbeat_hz" in changed:
+            if "mavlink.heartbeat_hz" in changed:
                 self._next_hb_ns = 0  # the next one goes now, then at the new rate
-            if "attitude_rate_hz" in changed:
+            if "mavlink.attitude_rate_hz" in changed:
                 # ask again at the new rate (0: stop asking; the autopilot's own stream setting stays)
                 self._att_requests = 0
                 self._att_acked = False
                 self._att_next_request_ns = 0
-            if "timesync" in changed:
+            if "mavlink.timesync" in changed:
                 self._ts_pending.clear()
                 self._next_ts_ns = 0
         if changed:
-            log.info("mavlink link applied: %s", ", ".join("%s=%s" % (k, _get(cfg, k)) for k in changed))
-        return ["mavlink." + k for k in changed]
+            values = flat_config(cfg, "mavlink")
+            log.info("mavlink link applied: %s", ", ".join("%s=%s" % (k[len("mavlink."):], values[k]) for k in changed))
+        return changed
 
     def send_message(self, msg_type: str, /, **fields: Any) -> bool:
         """Send one MAVLink message by name, e.g. ``send_message("DEBUG_VECT", name=b"TGT_BRG", ...)``.
@@ -597,12 +599,6 @@ class MavlinkLink:
                 self._ack(msg, _M.MAV_RESULT_DENIED)
         elif msg.target_component != 0:
             self._ack(msg, _M.MAV_RESULT_UNSUPPORTED)
-
-
-def _get(cfg: Any, dotted: str) -> Any:
-    for part in dotted.split("."):
-        cfg = getattr(cfg, part)
-    return cfg
 
 
 def _allow_unsigned(_mav: Any, msg_id: int) -> bool:
