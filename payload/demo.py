@@ -112,7 +112,7 @@ class _DemoView:
         self.video.write(draw_result(frame.image, result, status))
         fps = self.frames / max(time.monotonic() - self.t_start, 1e-6)
         line = "frame %4d  %5.1f fps  mode=%-6s  target=%-9s  %s  TP=%d FP=%d FN=%d" % (
-            frame.index, fps, result.mode, _state(result), status, self.tp, self.fp, self.fn)
+            frame.index, fps, result.mode, result.state, status, self.tp, self.fp, self.fn)
         if self.tty:
             sys.stderr.write("\r" + line)
             sys.stderr.flush()
@@ -132,12 +132,6 @@ class _DemoView:
         self.video.close()
         if self.tty:
             sys.stderr.write("\n")
-
-
-def _state(result: GladResult) -> str:
-    if result.target is None:
-        return "searching"
-    return "detected" if result.target.measured else "coasting"
 
 
 def main_demo(args) -> int:

@@ -133,7 +133,7 @@ def read_detections_csv(path: str) -> Dict[int, Detections]:
 
 DECISION_FIELDS = ("frame", "t_capture_ns", "t_wall_ns", "mode", "state", "module", "score", "x", "y", "w", "h",
                    "region_x", "region_y", "region_w", "region_h", "az_body_rad", "el_body_rad", "az_level_rad",
-                   "el_level_rad", "messages_sent")
+                   "el_level_rad", "messages_sent", "lock_p")
 
 
 def decision_row(frame: Any, result: Any, bearing: Any, sent: int) -> tuple:
@@ -147,9 +147,10 @@ def decision_row(frame: Any, result: Any, bearing: Any, sent: int) -> tuple:
     if bearing is not None:
         angles = ["%.5f" % v if v is not None else "" for v in
                   (bearing.az_body_rad, bearing.el_body_rad, bearing.az_level_rad, bearing.el_level_rad)]
-    state = "searching" if t is None else ("detected" if t.measured else "coasting")
-    return (frame.index, frame.t_capture_ns, frame.t_wall_ns, result.mode, state,
-            "" if t is None else t.module, "" if t is None else "%.3f" % t.score, *box, *region, *angles, int(sent))
+    lock_p = result.lock_p
+    return (frame.index, frame.t_capture_ns, frame.t_wall_ns, result.mode, result.state,
+            "" if t is None else t.module, "" if t is None else "%.3f" % t.score, *box, *region, *angles, int(sent),
+            "%.3f" % lock_p if lock_p == lock_p else "")
 
 
 class CsvLog:

@@ -217,10 +217,7 @@ class Service:
     # --- reporting ------------------------------------------------------------------------
 
     def _state(self) -> str:
-        r = self._last_result
-        if r is None or r.target is None:
-            return "searching"
-        return "tracking" if r.target.measured else "coasting"
+        return "searching" if self._last_result is None else self._last_result.state
 
     def _maybe_summary(self) -> None:
         if time.monotonic() - self.stats.interval_start_s >= self.cfg.logging.summary_interval_s:

@@ -84,3 +84,21 @@ def brightness_classifier(path):
         helper.make_node("Concat", ["clutter", "drone"], ["prob"], axis=1),
     ]
     return _save(helper.make_graph(nodes, "brightness", [x], [y], consts), path)
+
+
+def last_row_verifier(path, feature_index, window=16, features=None):
+    """The lock verifier's contract (input 'tracks' [N, T, F], output [N, 1]): the drone probability is
+    feature ``feature_index`` of the newest row (e.g. FEATURES.index('drone_p'): the classifier's
+    verdict on this frame). ``features``: F (default the runtime's N_FEATURES)."""
+    from payload.detect.verify import N_FEATURES
+
+    f = N_FEATURES if features is None else features
+    x = helper.make_tensor_value_info("tracks", TensorProto.FLOAT, ["N", window, f])
+    y = helper.make_tensor_value_info("drone_p", TensorProto.FLOAT, ["N", 1])
+    consts = [numpy_helper.from_array(np.array(window - 1, np.int64), "last"),
+              numpy_helper.from_array(np.array([feature_index], np.int64), "column")]
+    nodes = [
+        helper.make_node("Gather", ["tracks", "last"], ["newest"], axis=1),  # [N, F]
+        helper.make_node("Gather", ["newest", "column"], ["drone_p"], axis=1),  # [N, 1]
+    ]
+    return _save(helper.make_graph(nodes, "last_row_verifier", [x], [y], consts), path)

@@ -56,6 +56,7 @@ def _spot_glad(tmp_path, **overrides):
         "detector.classifier.model": brightness_classifier(tmp_path / "bright.onnx"),
         "detector.global.motion.enabled": False,
         "detector.classifier.confirm_hits": 0,
+        "detector.verifier.enabled": False,  # judged over frames: tests/test_verify.py
         **overrides,
     })
     return Glad(cfg.detector, build_detectors(cfg.detector))

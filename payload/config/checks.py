@@ -109,7 +109,8 @@ def file_problems(cfg: Config) -> List[Tuple[Tuple, str]]:
     det = cfg.detector
     models = [(("detector", "global", "appearance", "model"), det.global_.appearance),
               (("detector", "local", "appearance", "model"), det.local.appearance),
-              (("detector", "classifier", "model"), det.classifier)]
+              (("detector", "classifier", "model"), det.classifier),
+              (("detector", "verifier", "model"), det.verifier)]
     for loc, section in models:
         if section.enabled and section.model:
             problem = path_problem(section.model, want_dir=False)

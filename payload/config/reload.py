@@ -32,6 +32,7 @@ RESTART_KEYS = (
     "detector.local.appearance.model",
     "detector.local.appearance.input_wh",
     "detector.classifier.model",
+    "detector.verifier.model",
     "outputs",
 )
 

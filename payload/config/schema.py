@@ -190,6 +190,23 @@ class ClassifierConfig(Section):
     confirm_threshold: float = Field(0.8, ge=0, le=1, description="Mean MAV probability that confirms a new lock (confirm_hits).")
 
 
+class VerifierConfig(Section):
+    # Chosen by grouped cross-validation over whole recording sessions (training/train_verifier.py,
+    # docs/results.md "Lock verification"), never on one split.
+    enabled: bool = Field(True, description="Report a lock only once the lock verifier believes it (payload/detect/verify.py).")
+    model: Optional[str] = Field(None, description="ONNX file; null = the model shipped in the package.")
+    min_frames: int = Field(8, ge=1, le=1000, description="Frames of a lock before the verifier judges it; until then it is followed, not reported.")
+    threshold: float = Field(0.5, ge=0, le=1, description="Drone probability over the lock's recent frames that verifies it.")
+    release_threshold: float = Field(0.3, ge=0, le=1, description="A verified lock stops being reported below this probability.")
+
+    @model_validator(mode="after")
+    def _order(self):
+        if self.release_threshold > self.threshold:
+            raise ValueError("verifier.release_threshold (%g) must not exceed verifier.threshold (%g)"
+                             % (self.release_threshold, self.threshold))
+        return self
+
+
 class SearchRegionConfig(Section):
     adaptive: bool = Field(True, description="Kalman-predicted centre and growing side; false = fixed square at the last box.")
     side_px: int = Field(300, ge=32, le=4096, description="L0: side of the square region.")
@@ -231,6 +248,7 @@ class DetectorConfig(Section):
     )
     local: StageConfig = StageConfig(appearance=AppearanceConfig(confidence=0.1, input_wh=(320, 320)))
     classifier: ClassifierConfig = ClassifierConfig()
+    verifier: VerifierConfig = VerifierConfig()
     search_region: SearchRegionConfig = SearchRegionConfig()
     switcher: SwitcherConfig = SwitcherConfig()
 

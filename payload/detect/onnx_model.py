@@ -28,6 +28,13 @@ _CHAINS = {"tensorrt": (TRT, CUDA, CPU), "cuda": (CUDA, CPU), "cpu": (CPU,)}
 _WARMUP_HW = 64
 
 
+def _shape_fits(shape, spec) -> bool:
+    """Whether an ONNX input shape (ints, or names/None for free dims) can take ``spec`` (None = any)."""
+    if shape is None or len(shape) != len(spec):
+        return False
+    return all(want is None or not isinstance(have, int) or have == want for have, want in zip(shape, spec))
+
+
 def _ort():
     try:
         import onnxruntime
@@ -83,7 +90,8 @@ def _check_fixed_dims(where: str, config_key: str, name: str, shape, channels: i
 
 
 class OnnxModel:
-    """One inference session. ``expected_inputs`` maps each input name to its channel count (NCHW).
+    """One inference session. ``expected_inputs`` maps each input name to its channel count (NCHW),
+    or to a full shape tuple with None where any size goes (e.g. the verifier's [N, T, F] rows).
 
     ``config_key`` names the config field the path came from, for error messages;
     ``warmup_hw`` is the (H, W) the caller will feed (batch 1): the warm-up feeds it to dynamic
@@ -98,7 +106,7 @@ class OnnxModel:
         threads: int = 0,
         fp16: bool = True,
         engine_cache_dir: Optional[str] = None,
-        expected_inputs: Optional[Dict[str, int]] = None,
+        expected_inputs: Optional[Dict[str, Any]] = None,
         config_key: str = "model",
         warmup_hw: Optional[Tuple[int, int]] = None,
     ) -> None:
@@ -132,6 +140,12 @@ class OnnxModel:
         inputs = {i.name: i.shape for i in self.session.get_inputs()}
         for name, channels in expected_inputs.items():
             shape = inputs.get(name)
+            if isinstance(channels, tuple):  # a full shape, None where any size goes ([N, T, F] rows)
+                if not _shape_fits(shape, channels):
+                    found = ", ".join("'%s' %s" % (n, _describe(s)) for n, s in inputs.items()) or "no inputs"
+                    raise ModelError("%s: expected input '%s' %s, found %s" % (
+                        where, name, _describe(["*" if d is None else d for d in channels]), found))
+                continue
             ok = shape is not None and len(shape) == 4 and (not isinstance(shape[1], int) or shape[1] == channels)
             if not ok:
                 found = ", ".join("'%s' %s" % (n, _describe(s)) for n, s in inputs.items()) or "no inputs"
@@ -151,7 +165,8 @@ class OnnxModel:
     def _warm_up(self, hw: Tuple[int, int]) -> None:
         feeds = {}
         for name, shape in self.input_shapes.items():
-            default = (1, self._channels[name], hw[0], hw[1])
+            spec = self._channels[name]
+            default = tuple(1 if d is None else d for d in spec) if isinstance(spec, tuple) else (1, spec, hw[0], hw[1])
             dims = [d if isinstance(d, int) and d > 0 else default[i] for i, d in enumerate(shape)]
             feeds[name] = np.zeros(dims, np.float32)
         try:

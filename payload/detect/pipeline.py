@@ -28,6 +28,7 @@ from payload.detect.motion import HomographyEstimate, MotionDetector, estimate_h
 from payload.detect.region import SearchRegion
 from payload.detect.scan import NativeScan
 from payload.detect.switcher import GLOBAL, LOCAL, Switcher
+from payload.detect.verify import LockVerifier
 from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
 
 log = logging.getLogger(__name__)
@@ -96,6 +97,17 @@ class GladResult:
     target: Optional[Target]  # measured or predicted (coasting) target; None when searching globally
     region_xyxy: Optional[np.ndarray]  # the search region searched this frame (local mode)
     timings_ms: Dict[str, float] = field(default_factory=dict)  # per module, for the benchmark
+    # a lock is followed but not reported: LockCheck or the verifier is not yet convinced of it
+    following: bool = False
+    lock_p: float = float("nan")  # the verifier's drone probability for the lock (nan: not judged)
+
+    @property
+    def state(self) -> str:
+        """The one vocabulary of the target state: 'searching', 'following' (a lock not reported
+        yet), 'detected' (a measured target) or 'coasting' (the search region's prediction)."""
+        if self.target is None:
+            return "following" if self.following else "searching"
+        return "detected" if self.target.measured else "coasting"
 
 
 class Glad:
@@ -113,7 +125,15 @@ class Glad:
         self.region = SearchRegion(cfg.search_region)
         self.switcher = Switcher(cfg.switcher, local_available=self._local_available(cfg))
         self.lock = LockCheck(*self._lock_settings(cfg))
+        v = cfg.verifier
+        self.verifier = LockVerifier(models.verifier, v.min_frames, v.threshold, v.release_threshold, v.enabled)
         self.scan = NativeScan()
+        # what this frame measured of the lock, for the verifier's row (reset each frame)
+        self._observed: Optional[Detections] = None
+        self._drone_p: Optional[float] = None
+        self._homography: Optional[np.ndarray] = None
+        self.last_lock_row: Optional[np.ndarray] = None  # the verifier's row of this frame's lock
+        self.last_lock_box: Optional[np.ndarray] = None  # the box that frame reports if verified
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
         self._ego_cfg = _ego_motion_config(cfg)
@@ -141,6 +161,8 @@ class Glad:
             data["local"]["appearance"]["enabled"] = False
         if self.models.classifier is None:
             data["classifier"]["enabled"] = False
+        if self.models.verifier is None:
+            data["verifier"]["enabled"] = False
         cfg = DetectorConfig.model_validate(data)
         applied = section_changes(self.cfg, cfg, "detector")
         self.cfg = cfg
@@ -151,6 +173,8 @@ class Glad:
         self.switcher.update_config(cfg.switcher)
         self.switcher.local_available = self._local_available(cfg)
         self.lock.update_config(*self._lock_settings(cfg))
+        v = cfg.verifier
+        self.verifier.update_config(v.min_frames, v.threshold, v.release_threshold, v.enabled)
         if self.models.global_appearance is not None:
             self.models.global_appearance.update_config(cfg.global_.appearance)
         if self.models.local_appearance is not None:
@@ -163,6 +187,7 @@ class Glad:
         self.switcher.reset()
         self.region.reset()
         self.lock.reset()
+        self.verifier.reset()
         self.scan.reset()
         self._prev = self._prev_t_ns = None
 
@@ -173,6 +198,7 @@ class Glad:
         t0 = time.perf_counter()
         grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
         timings["grey"] = _ms(t0)
+        self._observed, self._drone_p, self._homography = None, None, None
         mode = self.switcher.mode if self.region.active else GLOBAL
         if mode == LOCAL:
             result = self._local(frame, grey, timings)
@@ -180,10 +206,35 @@ class Glad:
             result = self._global(frame, grey, timings)
         self._prev = grey
         self._prev_t_ns = frame.t_capture_ns
-        if not self.lock.confirmed and (len(result.detections) or result.target is not None):
-            # followed, not reported: the classifier has not confirmed this lock (LockCheck)
-            result = replace(result, detections=Detections.empty(), target=None)
+        self._verify(frame, grey, result, timings)
+        if result.target is not None:
+            result = replace(result, lock_p=self.verifier.probability)
+        if not (self.lock.confirmed and self.verifier.verified) and (len(result.detections) or result.target is not None):
+            # followed, not reported: the classifier has not confirmed this lock (LockCheck), or
+            # its recent frames have not convinced the verifier (LockVerifier)
+            result = replace(result, detections=Detections.empty(), target=None, following=True)
         return result
+
+    def _verify(self, frame: Frame, grey: GreyLevels, result: GladResult, timings: Dict[str, float]) -> None:
+        """Add this frame of the lock to the verifier (a frame without a lock ends it)."""
+        self.last_lock_row = self.last_lock_box = None
+        target = result.target
+        if target is None:
+            self.verifier.reset()
+            return
+        t = time.perf_counter()
+        observed = self._observed if target.measured and self._observed is not None and len(self._observed) else None
+        if observed is not None and self._drone_p is None and self.verifier.judging and self.models.classifier is not None:
+            # the lock check did not ask the classifier this frame (it is off): the verifier's row needs it
+            self._drone_p = float(self.models.classifier.probabilities(frame.image, observed)[0])
+        row = self.verifier.features.row(
+            grey.full, target.xyxy, observed.xyxy[0] if observed is not None else None,
+            float(observed.score[0]) if observed is not None else 0.0,
+            str(observed.module[0]) if observed is not None else "", self._drone_p, self._homography)
+        self.verifier.add(row)
+        self.last_lock_row = row
+        self.last_lock_box = result.detections.xyxy[0].copy() if len(result.detections) else None
+        timings["verifier"] = _ms(t)
 
     def _global(self, frame: Frame, grey: GreyLevels, timings: Dict[str, float]) -> GladResult:
         found = Detections.empty()
@@ -226,6 +277,7 @@ class Glad:
     def _local(self, frame: Frame, grey: GreyLevels, timings: Dict[str, float]) -> GladResult:
         t = time.perf_counter()
         homography = self._ego_motion(grey)
+        self._homography = homography if self._prev is not None else None
         dt_s = (frame.t_capture_ns - self._prev_t_ns) / 1e9 if self._prev_t_ns is not None else 1.0 / 30
         predicted = self.region.predict(homography, dt_s)
         region = self.region.region_xyxy(frame.size_wh)
@@ -267,6 +319,7 @@ class Glad:
             return GladResult(frame.index, frame.t_capture_ns, LOCAL, Detections.empty(), Detections.concat(candidates),
                               None, region, timings)
         if len(best):
+            self._observed = best
             self.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
             best = best.resized(self.region.size_wh).rescored(self.region.score)
             target = self._target(frame, best, region=region)
@@ -315,6 +368,8 @@ class Glad:
         """A new target: the search region starts around it and its lock is judged afresh."""
         self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
         self.lock.reset()
+        self.verifier.reset()
+        self._observed = best
         self._lock_holds(frame.image, best, timings)
         return self._target(frame, best, region=None)
 
@@ -359,6 +414,7 @@ class Glad:
             return True
         t = time.perf_counter()
         probability = float(self.models.classifier.probabilities(image, best)[0])
+        self._drone_p = probability
         timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
         return self.lock.add(probability)
 

@@ -4,15 +4,19 @@ import os
 from dataclasses import dataclass
 from typing import Optional
 
+import numpy as np
+
 from payload.config import AppearanceConfig, DetectorConfig
 from payload.detect.appearance import AppearanceDetector
 from payload.detect.classifier import AppearanceClassifier
 from payload.detect.onnx_model import OnnxModel
+from payload.detect.verify import N_FEATURES
 from payload.errors import ModelError
 from payload.types import GAD, LAD
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
-_FILES = {"global": "glad_global.onnx", "local": "glad_local.onnx", "classifier": "glad_classifier.onnx"}
+_FILES = {"global": "glad_global.onnx", "local": "glad_local.onnx", "classifier": "glad_classifier.onnx",
+          "verifier": "glad_verifier.onnx"}
 
 
 def builtin_model_path(name: str) -> str:
@@ -27,6 +31,7 @@ class DetectorModels:
     global_appearance: Optional[AppearanceDetector]
     local_appearance: Optional[AppearanceDetector]
     classifier: Optional[AppearanceClassifier]
+    verifier: Optional[OnnxModel] = None  # the lock verifier's network (payload.detect.verify)
 
 
 def build_detectors(cfg: DetectorConfig) -> DetectorModels:
@@ -55,8 +60,26 @@ def build_detectors(cfg: DetectorConfig) -> DetectorModels:
     if cfg.classifier.enabled:
         m = model(cfg.classifier.model, "classifier", "detector.classifier.model", {"patches": 3}, None)
         classifier = AppearanceClassifier(m, cfg.classifier)
+    verifier = None
+    if cfg.verifier.enabled:
+        verifier = model(cfg.verifier.model, "verifier", "detector.verifier.model",
+                         {"tracks": (None, None, N_FEATURES)}, None)
+        check_verifier(verifier)
     return DetectorModels(
         global_appearance=appearance(cfg.global_.appearance, "global", GAD),
         local_appearance=appearance(cfg.local.appearance, "local", LAD),
         classifier=classifier,
+        verifier=verifier,
     )
+
+
+def check_verifier(model: OnnxModel) -> None:
+    """The verifier's contract (payload.detect.verify): [N, T, F] rows in, [N, 1] probability out."""
+    shape = next(iter(model.input_shapes.values()))
+    window, features = shape[1], shape[2]
+    if not (isinstance(window, int) and window > 0 and features == N_FEATURES):
+        raise ModelError("%s: expected input [N, T, %d] (T frames of the lock's rows), found %s"
+                         % (model.path, N_FEATURES, list(shape)))
+    out = model.run({next(iter(model.input_shapes)): np.zeros((1, window, N_FEATURES), np.float32)})[0]
+    if out.size != 1:
+        raise ModelError("%s: expected output [N, 1] (drone probability), found %s" % (model.path, list(out.shape)))

@@ -1,0 +1,184 @@
+"""Lock verification: judge a lock over its recent frames, not one crop (issue 16).
+
+A single 32x32 crop cannot tell a drone from a bird, an airliner or a bright patch of clutter
+often enough for an autopilot that steers toward what it is told. What does tell them apart
+shows over time: how the target moves against the camera-compensated background (a drone hovers
+and turns, a bird glides and flaps, an airliner crawls), how its look and size hold (rotor
+flicker vs wing beat, shape stability), what lies around it (smooth sky or textured ground), and
+how the classifier's verdicts run. ``LockFeatures`` turns each frame of a lock into one row of
+such measurements (the same code at training and at run time); ``LockVerifier`` keeps the last
+``window`` rows of the current lock and asks a small ONNX network of our own (training/
+train_verifier.py) for the probability that the lock is a drone.
+
+Network contract: input 'tracks' [N, T, F] float32 (F = len(FEATURES), rows oldest first, missing
+rows all zero: their 'present' feature is 0); output [N, 1] drone probability.
+"""
+
+import logging
+from collections import deque
+from typing import Optional, Tuple
+
+import numpy as np
+
+from payload.types import GAD, GMD, LAD, LMD
+
+log = logging.getLogger(__name__)
+
+FEATURES = (
+    "present",  # 1 for a frame of the lock, 0 for padding
+    "measured",  # a detector found it this frame (0: the search region coasts)
+    "gad", "gmd", "lad", "lmd",  # which module found it
+    "score",  # the module's score
+    "drone_p",  # the 32x32 classifier's drone probability (the last one while coasting)
+    "log2_w", "log2_h",  # size of the measured box (px, as detected)
+    "rel_dx", "rel_dy",  # motion against the compensated background, in box sizes per frame
+    "log_rel_px",  # log1p of that motion in pixels
+    "log_ego_px",  # log1p of the camera's own motion at the target (px per frame)
+    "contrast",  # (mean inside - mean of the ring around) / (ring std + 4): sign = polarity
+    "log_std_in",  # log1p of the grey std inside the box: texture / blur of the target
+    "log_std_ring",  # log1p of the ring's std: smooth sky or textured ground
+    "motion_valid",  # the previous frame and its camera motion were known
+)
+N_FEATURES = len(FEATURES)
+_MODULES = (GAD, GMD, LAD, LMD)
+
+
+class LockFeatures:
+    """Per-frame measurements of one lock (``row``), remembering where it was last frame."""
+
+    def __init__(self) -> None:
+        self._prev_center: Optional[np.ndarray] = None
+        self._last = np.zeros(N_FEATURES, np.float32)
+
+    def reset(self) -> None:
+        self._prev_center = None
+        self._last = np.zeros(N_FEATURES, np.float32)
+
+    def row(self, grey: np.ndarray, target_xyxy: np.ndarray, measured_xyxy: Optional[np.ndarray],
+            score: float, module: str, drone_p: Optional[float], homography: Optional[np.ndarray]) -> np.ndarray:
+        """One row for this frame. ``measured_xyxy`` is the box a detector found (None while the
+        region coasts on ``target_xyxy``, its prediction); ``homography`` maps last frame's pixels to
+        this frame's (None when unknown, e.g. on the frame a lock starts)."""
+        r = np.zeros(N_FEATURES, np.float32)
+        r[0] = 1.0
+        box = np.asarray(measured_xyxy if measured_xyxy is not None else target_xyxy, np.float64)
+        center = np.array([(box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0])
+        w, h = max(1.0, box[2] - box[0]), max(1.0, box[3] - box[1])
+        if measured_xyxy is not None:
+            r[1] = 1.0
+            if module in _MODULES:
+                r[2 + _MODULES.index(module)] = 1.0
+            r[6] = _finite(score)
+            r[8], r[9] = np.log2(w), np.log2(h)
+            r[14:17] = _surroundings(grey, box)
+        else:
+            r[8:10] = self._last[8:10]
+            r[14:17] = self._last[14:17]
+        r[7] = _finite(drone_p) if drone_p is not None else self._last[7]
+        if self._prev_center is not None and homography is not None and np.all(np.isfinite(homography)):
+            p = homography @ np.array([self._prev_center[0], self._prev_center[1], 1.0])
+            if abs(p[2]) > 1e-9:
+                carried = p[:2] / p[2]
+                rel = center - carried
+                size = np.sqrt(w * h)
+                r[10:12] = np.clip(rel / size, -10.0, 10.0)
+                r[12] = np.log1p(min(1e4, float(np.hypot(*rel))))
+                r[13] = np.log1p(min(1e4, float(np.hypot(*(carried - self._prev_center)))))
+                r[17] = 1.0
+        self._prev_center = center
+        self._last = r
+        return r
+
+
+def _finite(value) -> float:
+    v = float(value)
+    return v if np.isfinite(v) else 0.0
+
+
+def _surroundings(grey: np.ndarray, box: np.ndarray) -> Tuple[float, float, float]:
+    """(contrast, log1p std inside, log1p std of the ring out to twice the box) on the grey frame."""
+    H, W = grey.shape[:2]
+    x1, y1, x2, y2 = (int(round(v)) for v in box)
+    x1, y1 = max(0, min(W - 1, x1)), max(0, min(H - 1, y1))
+    x2, y2 = max(x1 + 1, min(W, x2)), max(y1 + 1, min(H, y2))
+    bw, bh = x2 - x1, y2 - y1
+    ox1, oy1 = max(0, x1 - bw // 2 - 2), max(0, y1 - bh // 2 - 2)
+    ox2, oy2 = min(W, x2 + bw // 2 + 2), min(H, y2 + bh // 2 + 2)
+    outer = grey[oy1:oy2, ox1:ox2].astype(np.float32)
+    inner = grey[y1:y2, x1:x2].astype(np.float32)
+    n_out, n_in = outer.size, inner.size
+    s_out, s_in = float(outer.sum()), float(inner.sum())
+    q_out, q_in = float((outer * outer).sum()), float((inner * inner).sum())
+    n_ring = n_out - n_in
+    mean_in = s_in / n_in
+    std_in = np.sqrt(max(0.0, q_in / n_in - mean_in * mean_in))
+    if n_ring <= 0:
+        return 0.0, float(np.log1p(std_in)), 0.0
+    mean_ring = (s_out - s_in) / n_ring
+    std_ring = np.sqrt(max(0.0, (q_out - q_in) / n_ring - mean_ring * mean_ring))
+    contrast = float(np.clip((mean_in - mean_ring) / (std_ring + 4.0), -10.0, 10.0))
+    return contrast, float(np.log1p(std_in)), float(np.log1p(std_ring))
+
+
+class LockVerifier:
+    """The current lock's recent rows and the network's verdict on them.
+
+    ``verified`` turns True once the lock has at least ``min_frames`` rows and the network's drone
+    probability reaches ``threshold``; it turns False again (the lock stops being reported) when
+    the probability falls below ``release_threshold``. Without a model, or switched off, every lock
+    counts as verified (rows are still kept: training/mine_tracks.py reads them). The window T is
+    the model's (its input [N, T, F]).
+    """
+
+    def __init__(self, model=None, min_frames: int = 8, threshold: float = 0.5, release_threshold: float = 0.3,
+                 enabled: bool = True, window: int = 16) -> None:
+        self.model = model
+        self._input_name = None
+        if model is not None:
+            self._input_name, shape = next(iter(model.input_shapes.items()))
+            window = int(shape[1])
+        self.window = window
+        self.features = LockFeatures()
+        self.rows: deque = deque(maxlen=window)
+        self.update_config(min_frames, threshold, release_threshold, enabled)
+        self.reset()
+
+    @property
+    def judging(self) -> bool:
+        return self.enabled and self.model is not None
+
+    def update_config(self, min_frames: int, threshold: float, release_threshold: float, enabled: bool = True) -> None:
+        self.min_frames, self.threshold, self.release_threshold = min_frames, threshold, release_threshold
+        self.enabled = enabled
+        if not self.judging:
+            self.verified = True
+
+    def reset(self) -> None:
+        """A new lock (or none)."""
+        self.features.reset()
+        self.rows.clear()
+        self.probability = float("nan")  # the network's last verdict on this lock (nan: none yet)
+        self.verified = not self.judging
+
+    def add(self, row: np.ndarray) -> bool:
+        """Record this frame's row of the lock; returns whether the lock is verified now."""
+        self.rows.append(row)
+        if not self.judging:
+            return True
+        if len(self.rows) < self.min_frames:
+            return self.verified
+        self.probability = float(self.model.run({self._input_name: self.window_array()[None]})[0].reshape(-1)[0])
+        if not np.isfinite(self.probability):
+            self.verified = False
+        elif self.verified:
+            self.verified = self.probability >= self.release_threshold
+        else:
+            self.verified = self.probability >= self.threshold
+        return self.verified
+
+    def window_array(self) -> np.ndarray:
+        """The last ``window`` rows [T, F], oldest first, zero rows in front while fewer."""
+        out = np.zeros((self.window, N_FEATURES), np.float32)
+        if self.rows:
+            out[self.window - len(self.rows):] = np.stack(self.rows)
+        return out

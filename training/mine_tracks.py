@@ -1,0 +1,151 @@
+"""Mine the locks GLAD follows, frame by frame, for the lock verifier (payload/detect/verify.py).
+
+Runs GLAD with the default config (the shipped models, or a fold's with --models) over Halmstad
+clips and synthetic scenes, and keeps, for every frame in which GLAD follows a lock (reported or
+not), the verifier's feature row, the lock's number within the clip, whether LockCheck has
+confirmed it, the box that frame would report, and the drone's labelled box nearest to it. The
+rows are written per clip to OUT/<clip>.npz, so an interrupted run resumes where it stopped and
+several shards can run side by side:
+
+  python training/mine_tracks.py --out training/cache/tracks --shard 0 --shards 2
+  python training/mine_tracks.py --out training/cache/tracks --synthetic 24 --shard 0 --shards 1
+
+Synthetic scenes: seeds 5000.. with a drone and ground movers (cars) under ego-motion, and seeds
+6000.. without the drone (``render_target=False``, more cars): every lock there is false.
+"""
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from payload.config import load_config  # noqa: E402
+from payload.detect.pipeline import Glad  # noqa: E402
+from payload.detect.verify import N_FEATURES  # noqa: E402
+from payload.eval.cv import halmstad_clips  # noqa: E402
+from payload.eval.labels import load_labels  # noqa: E402
+from payload.synth.scene import Scene  # noqa: E402
+from payload.types import Frame  # noqa: E402
+
+DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "data", "halmstad")
+SYNTH_DRONE_SEED, SYNTH_EMPTY_SEED = 5000, 6000
+
+
+def nearest(gt: np.ndarray, box) -> np.ndarray:
+    """The labelled box whose centre is nearest to ``box`` (the first one without a box); NaN if none."""
+    if gt is None or not len(gt):
+        return np.full(4, np.nan, np.float32)
+    if box is None:
+        return np.asarray(gt[0], np.float32)
+    c = (np.asarray(box[:2]) + np.asarray(box[2:])) / 2.0
+    g = (gt[:, :2] + gt[:, 2:]) / 2.0
+    return np.asarray(gt[int(np.argmin(np.hypot(*(g - c).T)))], np.float32)
+
+
+def run(glad, frames, fps=30.0):
+    """GLAD from a fresh start over ``frames`` ((index, image, drone boxes [K,4] or None)): the arrays
+    of one clip."""
+    glad.reset()
+    rows, index, lock, confirmed, box, gt = [], [], [], [], [], []
+    n_frames = n_gt = 0
+    lock_id = -1
+    for i, image, drones in frames:
+        n_frames += 1
+        n_gt += int(drones is not None and len(drones) > 0)
+        t_ns = int(i * 1e9 / fps)
+        glad.process(Frame(image=image, index=i, t_capture_ns=t_ns, t_wall_ns=t_ns))
+        if glad.last_lock_row is None:
+            continue
+        if len(glad.verifier.rows) == 1:
+            lock_id += 1
+        rows.append(glad.last_lock_row)
+        index.append(i)
+        lock.append(lock_id)
+        confirmed.append(glad.lock.confirmed)
+        b = glad.last_lock_box
+        box.append(np.full(4, np.nan, np.float32) if b is None else b)
+        gt.append(nearest(drones, b))
+    return dict(rows=np.asarray(rows, np.float32).reshape(-1, N_FEATURES), frame=np.asarray(index, np.int32),
+                lock=np.asarray(lock, np.int32), confirmed=np.asarray(confirmed, bool),
+                box=np.asarray(box, np.float32).reshape(-1, 4), gt=np.asarray(gt, np.float32).reshape(-1, 4),
+                frames=np.int32(n_frames), gt_frames=np.int32(n_gt))
+
+
+def halmstad_frames(clip):
+    import cv2
+
+    labels = load_labels(clip.labels, classes=("DRONE",))
+    cap = cv2.VideoCapture(clip.video)
+    i = 0
+    while True:
+        ok, image = cap.read()
+        if not ok:
+            break
+        yield i, image, labels.get(i)
+        i += 1
+    cap.release()
+
+
+def scene_frames(scene):
+    for sf in scene:
+        yield sf.index, sf.image, (None if sf.target_xyxy is None or not scene.render_target
+                                   else np.asarray(sf.target_xyxy, np.float32)[None])
+
+
+def jobs(args):
+    out = []
+    if not args.synthetic_only:
+        for clip in halmstad_clips(args.data):
+            out.append((clip.name, lambda clip=clip: halmstad_frames(clip)))
+    for k in range(args.synthetic):
+        for seed, with_drone in ((SYNTH_DRONE_SEED + k, True), (SYNTH_EMPTY_SEED + k, False)):
+            def frames(seed=seed, with_drone=with_drone):
+                scene = Scene(seed=seed, frames=args.scene_frames, target_px=(4.0, 40.0), cars=3 if with_drone else 8,
+                              render_target=with_drone)
+                return scene_frames(scene)
+            out.append(("SYN_%s_%d" % ("DRONE" if with_drone else "EMPTY", seed), frames))
+    # shuffled (a fixed order): a run stopped part-way still covers every kind and every fold evenly
+    order = np.random.default_rng(0).permutation(len(out))
+    out = [out[n] for n in order]
+    return [j for n, j in enumerate(out) if n % args.shards == args.shard]
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--data", default=DATA)
+    ap.add_argument("--config", default=None)
+    ap.add_argument("--shard", type=int, default=0)
+    ap.add_argument("--shards", type=int, default=1)
+    ap.add_argument("--synthetic", type=int, default=0, help="synthetic scene pairs (drone / empty)")
+    ap.add_argument("--synthetic-only", action="store_true")
+    ap.add_argument("--scene-frames", type=int, default=150)
+    args = ap.parse_args()
+    os.makedirs(args.out, exist_ok=True)
+    import cv2
+
+    cv2.setNumThreads(1)  # one core per shard: shards side by side must not fight over threads
+    cfg = load_config(args.config)
+    # the verifier off: every lock is followed and reported as today, its rows recorded all the same
+    glad = Glad(cfg.detector.model_copy(update={
+        "threads": 1, "verifier": cfg.detector.verifier.model_copy(update={"enabled": False})}))
+    todo = jobs(args)
+    for n, (name, frames) in enumerate(todo):
+        path = os.path.join(args.out, name + ".npz")
+        if os.path.exists(path):
+            continue
+        t = time.time()
+        arrays = run(glad, frames())
+        tmp = path + ".tmp.npz"
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)
+        print("%d/%d %s frames %d locked %d locks %d (%.0f s)" % (
+            n + 1, len(todo), name, arrays["frames"], len(arrays["rows"]), len(set(arrays["lock"].tolist())),
+            time.time() - t), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,312 @@
+"""Train the lock verifier (payload/detect/verify.py) on mined locks, by grouped cross-validation.
+
+Reads OUT/<clip>.npz from training/mine_tracks.py. Every frame of a lock that GLAD would report
+(it has a box) is one example: the lock's last T rows up to that frame; label 1 when the box's
+centre lies inside the labelled drone, 0 on clips without a drone (birds, airliners, helicopters,
+drone-free synthetic scenes) and for boxes far from the drone. Each fold of payload/eval/folds.py
+gets a network trained without its clips; the reporting rule (verified once the probability
+reaches a threshold after min_frames, released below release_threshold, on top of LockCheck)
+is replayed on the held-out locks, exactly as GLAD applies it, and scored per clip group. The
+threshold is chosen on those out-of-fold figures, then the network that ships is trained on all
+clips with the same recipe:
+
+  python training/train_verifier.py --tracks training/cache/tracks --out training/runs/verifier
+  python training/train_verifier.py ... --export payload/models/glad_verifier.onnx
+"""
+
+import argparse
+import glob
+import json
+import os
+import sys
+import time
+from typing import Dict, List
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from payload.detect.verify import FEATURES, N_FEATURES  # noqa: E402
+from payload.eval.folds import load_folds  # noqa: E402
+
+WINDOW = 16
+GROUPS = ("visible drones", "thermal drones", "visible negatives", "thermal negatives", "synthetic drones",
+          "synthetic empty")
+
+
+def group_of(name: str) -> str:
+    if name.startswith("SYN_"):
+        return "synthetic drones" if name.startswith("SYN_DRONE") else "synthetic empty"
+    sensor = "visible" if name.startswith("V_") else "thermal"
+    return "%s %s" % (sensor, "drones" if "_DRONE_" in name else "negatives")
+
+
+def fold_of(folds, name: str) -> int:
+    if name.startswith("SYN_"):
+        return int(name.rsplit("_", 1)[1]) % folds.k
+    return folds.fold_of(name)
+
+
+def load(tracks_dir: str) -> List[Dict]:
+    folds = load_folds()
+    clips = []
+    for path in sorted(glob.glob(os.path.join(tracks_dir, "*.npz"))):
+        name = os.path.basename(path)[:-4]
+        if name.endswith(".tmp"):
+            continue
+        with np.load(path) as z:
+            c = {k: z[k] for k in z.files}
+        c["name"], c["group"], c["fold"] = name, group_of(name), fold_of(folds, name)
+        c["label"] = frame_labels(c)
+        c["windows"] = windows(c["rows"], c["lock"])
+        clips.append(c)
+    return clips
+
+
+def frame_labels(c) -> np.ndarray:
+    """1 true target, 0 false, -1 no box this frame (coasting: not reported, not an example)."""
+    box, gt = c["box"], c["gt"]
+    has_box = np.isfinite(box).all(1)
+    label = np.where(has_box, 0, -1).astype(np.int8)
+    if "DRONE" not in c["name"]:
+        return label
+    cx, cy = (box[:, 0] + box[:, 2]) / 2, (box[:, 1] + box[:, 3]) / 2
+    with np.errstate(invalid="ignore"):
+        inside = (cx >= gt[:, 0]) & (cx < gt[:, 2]) & (cy >= gt[:, 1]) & (cy < gt[:, 3])
+    label[has_box & inside] = 1
+    return label
+
+
+def iou_ok(c) -> np.ndarray:
+    box, gt = c["box"], c["gt"]
+    ix = np.clip(np.minimum(box[:, 2], gt[:, 2]) - np.maximum(box[:, 0], gt[:, 0]), 0, None)
+    iy = np.clip(np.minimum(box[:, 3], gt[:, 3]) - np.maximum(box[:, 1], gt[:, 1]), 0, None)
+    inter = ix * iy
+    union = (box[:, 2] - box[:, 0]) * (box[:, 3] - box[:, 1]) + (gt[:, 2] - gt[:, 0]) * (gt[:, 3] - gt[:, 1]) - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.nan_to_num(inter / union) > 0.5
+
+
+def windows(rows: np.ndarray, lock: np.ndarray, window: int = WINDOW) -> np.ndarray:
+    """[n, T, F]: each frame's last T rows of its own lock, oldest first, zero rows in front."""
+    n = len(rows)
+    out = np.zeros((n, window, N_FEATURES), np.float32)
+    start = 0
+    for i in range(n):
+        if i and lock[i] != lock[i - 1]:
+            start = i
+        lo = max(start, i - window + 1)
+        out[i, window - (i + 1 - lo):] = rows[lo:i + 1]
+    return out
+
+
+def positions(lock: np.ndarray) -> np.ndarray:
+    """Each row's 1-based position within its lock."""
+    pos = np.ones(len(lock), np.int32)
+    for i in range(1, len(lock)):
+        pos[i] = pos[i - 1] + 1 if lock[i] == lock[i - 1] else 1
+    return pos
+
+
+# --- the network --------------------------------------------------------------------------------
+
+def build_net(mean: np.ndarray, std: np.ndarray):
+    import torch
+    from torch import nn
+
+    class Verifier(nn.Module):
+        """Temporal convolutions over a lock's rows, pooled over the frames present."""
+
+        def __init__(self):
+            super().__init__()
+            self.register_buffer("mean", torch.tensor(mean, dtype=torch.float32))
+            self.register_buffer("std", torch.tensor(std, dtype=torch.float32))
+            self.conv = nn.Sequential(
+                nn.Conv1d(N_FEATURES, 24, 3, padding=1), nn.ReLU(),
+                nn.Conv1d(24, 24, 3, padding=1), nn.ReLU())
+            self.head = nn.Sequential(nn.Linear(48, 16), nn.ReLU(), nn.Linear(16, 1))
+
+        def forward(self, tracks):  # [N, T, F]
+            present = tracks[:, :, :1]
+            x = (tracks - self.mean) / self.std * present  # padding rows stay zero
+            h = self.conv(x.transpose(1, 2)).transpose(1, 2) * present  # [N, T, 24]
+            count = present.sum(1).clamp(min=1.0)
+            mean_h = h.sum(1) / count
+            max_h = (h - (1.0 - present) * 1e4).max(1).values
+            return torch.sigmoid(self.head(torch.cat([mean_h, max_h], 1)))
+
+    return Verifier()
+
+
+def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, log_every: int = 500):
+    import torch
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    present = x[:, :, 0] > 0
+    flat = x[present]
+    mean, std = flat.mean(0), flat.std(0) + 1e-3
+    mean[0], std[0] = 0.0, 1.0
+    net = build_net(mean, std)
+    opt = torch.optim.AdamW(net.parameters(), lr=3e-3, weight_decay=1e-3)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=3e-3, total_steps=steps)
+    p = w / w.sum()
+    xt, yt = torch.from_numpy(x), torch.from_numpy(y.astype(np.float32))
+    for step in range(steps):
+        idx = torch.from_numpy(rng.choice(len(x), 256, p=p))
+        xb = xt[idx]
+        # drop the oldest frames at random: the verifier must judge young locks too
+        keep = torch.from_numpy(rng.integers(4, WINDOW + 1, size=len(idx)))
+        mask = (torch.arange(WINDOW)[None, :] >= (WINDOW - keep)[:, None]).float()[:, :, None]
+        xb = xb * mask
+        out = net(xb).squeeze(1)
+        loss = torch.nn.functional.binary_cross_entropy(out.clamp(1e-6, 1 - 1e-6), yt[idx])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        if log_every and (step + 1) % log_every == 0:
+            print("  step %d loss %.4f" % (step + 1, loss.item()), flush=True)
+    net.eval()
+    return net
+
+
+def predict(net, x: np.ndarray) -> np.ndarray:
+    import torch
+
+    with torch.no_grad():
+        return np.concatenate([net(torch.from_numpy(x[i:i + 8192])).numpy()[:, 0]
+                               for i in range(0, len(x), 8192)]) if len(x) else np.zeros(0, np.float32)
+
+
+def examples(clips):
+    xs, ys, ws = [], [], []
+    for c in clips:
+        keep = c["label"] >= 0
+        if not keep.any():
+            continue
+        xs.append(c["windows"][keep])
+        ys.append(c["label"][keep])
+        ws.append(np.full(int(keep.sum()), 1.0, np.float32))
+    x, y, w = np.concatenate(xs), np.concatenate(ys), np.concatenate(ws)
+    # each class half the draws; within a class, each group of clips equally
+    groups = np.concatenate([np.full(int((c["label"] >= 0).sum()), c["group"]) for c in clips if (c["label"] >= 0).any()])
+    for cls in (0, 1):
+        sel = y == cls
+        gs = np.unique(groups[sel])
+        for g in gs:
+            m = sel & (groups == g)
+            w[m] = 1.0 / (m.sum() * len(gs) * 2)
+    return x, y, w
+
+
+# --- replaying the rule and scoring -------------------------------------------------------------
+
+def replay(c, prob: np.ndarray, threshold: float, release: float, min_frames: int, use_verifier: bool = True) -> np.ndarray:
+    """Which rows GLAD reports: LockCheck confirmed, a box, and (with the verifier) verified."""
+    reported = c["confirmed"] & np.isfinite(c["box"]).all(1)
+    if not use_verifier:
+        return reported
+    pos = positions(c["lock"])
+    verified = np.zeros(len(prob), bool)
+    state = False
+    for i in range(len(prob)):
+        if pos[i] == 1:
+            state = False
+        if pos[i] >= min_frames:
+            state = prob[i] >= (release if state else threshold)
+        verified[i] = state
+    return reported & verified
+
+
+def score(clips, reported: Dict[str, np.ndarray]) -> Dict[str, Dict[str, float]]:
+    out = {}
+    for g in GROUPS:
+        members = [c for c in clips if c["group"] == g]
+        if not members:
+            continue
+        frames = sum(int(c["frames"]) for c in members)
+        n_rep = sum(int(reported[c["name"]].sum()) for c in members)
+        if g.endswith("drones"):
+            gt = sum(int(c["gt_frames"]) for c in members)
+            tp = sum(int((reported[c["name"]] & iou_ok(c)).sum()) for c in members)
+            ctp = sum(int((reported[c["name"]] & (c["label"] == 1)).sum()) for c in members)
+            p, r = tp / max(1, n_rep), tp / max(1, gt)
+            cp, cr = ctp / max(1, n_rep), ctp / max(1, gt)
+            out[g] = dict(P=p, R=r, F=2 * p * r / max(1e-9, p + r), cP=cp, cR=cr, cF=2 * cp * cr / max(1e-9, cp + cr))
+        else:
+            out[g] = {"target%": 100.0 * n_rep / max(1, frames)}
+    return out
+
+
+def fmt(per_fold: List[Dict[str, Dict[str, float]]]) -> str:
+    lines = []
+    for g in GROUPS:
+        keys = next((f[g] for f in per_fold if g in f), None)
+        for key in keys or ():
+            v = np.array([f[g][key] if g in f else np.nan for f in per_fold])
+            ok = v[np.isfinite(v)]
+            lines.append("%-18s %-8s %s  mean %.3f +- %.3f" % (g, key, " ".join("%.3f" % a for a in v), ok.mean(),
+                                                              ok.std(ddof=1) if len(ok) > 1 else 0.0))
+    return "\n".join(lines)
+
+
+def export(net, path: str) -> None:
+    import torch
+
+    dummy = torch.zeros(1, WINDOW, N_FEATURES)
+    torch.onnx.export(net, dummy, path, input_names=["tracks"], output_names=["drone_p"], opset_version=17,
+                      dynamic_axes={"tracks": {0: "n"}, "drone_p": {0: "n"}}, dynamo=False)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--tracks", default="training/cache/tracks")
+    ap.add_argument("--out", default="training/runs/verifier")
+    ap.add_argument("--steps", type=int, default=1500)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--min-frames", type=int, nargs="+", default=[8])
+    ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.5, 0.7, 0.8, 0.9, 0.95])
+    ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
+    ap.add_argument("--export", default=None, help="also train on every clip and write this ONNX file")
+    args = ap.parse_args()
+    import torch
+
+    torch.set_num_threads(1)
+    os.makedirs(args.out, exist_ok=True)
+    t0 = time.time()
+    clips = load(args.tracks)
+    print("clips %d, lock frames %d (%.0f s)" % (len(clips), sum(len(c["rows"]) for c in clips), time.time() - t0))
+    k = max(c["fold"] for c in clips) + 1
+    prob = {}
+    for fold in range(k):
+        train_clips = [c for c in clips if c["fold"] != fold]
+        x, y, w = examples(train_clips)
+        print("fold %d: %d examples (%d drone)" % (fold, len(y), int(y.sum())), flush=True)
+        net = train(x, y, w, args.steps, args.seed + fold)
+        for c in clips:
+            if c["fold"] == fold:
+                prob[c["name"]] = predict(net, c["windows"])
+    folds = [[c for c in clips if c["fold"] == f] for f in range(k)]
+    report = {"features": list(FEATURES), "window": WINDOW, "steps": args.steps, "rules": {}}
+    base = [score(fc, {c["name"]: replay(c, None, 0, 0, 0, use_verifier=False) for c in fc}) for fc in folds]
+    print("\nLockCheck only (what GLAD reports today):\n" + fmt(base))
+    report["rules"]["lockcheck"] = base
+    for mf in args.min_frames:
+        for th in args.thresholds:
+            rel = th - 0.2 if args.release is None else args.release
+            res = [score(fc, {c["name"]: replay(c, prob[c["name"]], th, rel, mf) for c in fc}) for fc in folds]
+            print("\nverifier min_frames %d threshold %.2f release %.2f:\n%s" % (mf, th, rel, fmt(res)))
+            report["rules"]["verifier mf%d th%.2f rel%.2f" % (mf, th, rel)] = res
+    with open(os.path.join(args.out, "cv.json"), "w") as f:
+        json.dump(report, f, indent=1)
+    np.savez_compressed(os.path.join(args.out, "oof_prob.npz"), **prob)
+    if args.export:
+        x, y, w = examples(clips)
+        net = train(x, y, w, args.steps, args.seed + 100)
+        export(net, args.export)
+        print("wrote %s" % args.export)
+    print("done in %.0f s" % (time.time() - t0))
+
+
+if __name__ == "__main__":
+    main()
