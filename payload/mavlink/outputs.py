@@ -154,13 +154,12 @@ class TargetPublisher:
         if not self.cfg.tracking_image_status:
             return 0
         requested = self.camera is not None and self.camera.status_requested
-        if self.camera is not None and self.camera.interval_us(_MSG_IMAGE_STATUS) < 0 and not requested:
+        due = self._last_idle_ns is None or now_ns - self._last_idle_ns >= _IDLE_PERIOD_NS
+        if not (self._had_target or due or requested):
             return 0
-        if requested:
-            self.camera.status_requested = False
-        due = requested or self._last_idle_ns is None or now_ns - self._last_idle_ns >= _IDLE_PERIOD_NS
-        if not (self._had_target or due):
-            return 0
+        if not self._due(_MSG_IMAGE_STATUS, now_ns):
+            return 0  # a lost target's IDLE then goes with the first frame the interval allows
+        self._last_sent_ns[_MSG_IMAGE_STATUS] = now_ns
         self._had_target = False
         self._last_idle_ns = now_ns
         ok = self.link.send_message(
