@@ -4,6 +4,7 @@ ground station (system 255) sending the commands. The detection loop's side of a
 (take / after_frame) is driven by the test, as the service does it each frame."""
 
 import math
+import os
 import time
 
 import numpy as np
@@ -312,3 +313,27 @@ def test_position_stream_and_geo_messages(fakes, tmp_path):
     assert f["fields"]["position_cov"] == [36.0, 36.0, 9.0]
     # our own messages still come from our system id
     assert {r["sysid"] for r in fake.rows("HEARTBEAT") if r["compid"] == 100} == {1}
+
+
+def test_signing_rules_hold_for_camera_commands(fakes, tmp_path):
+    key = tmp_path / "key.hex"
+    key.write_text(os.urandom(32).hex())
+    port = free_port()
+    fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}", "--signing-key", str(key))
+    link = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}", signing={"enabled": True, "key_file": str(key)}))
+    camera = CameraProtocol(link, camera_config(), None)
+    with link:
+        wait_for(lambda: link.status.autopilot_seen, 10.0, "signed autopilot")
+        fake.command(f"{TRACK_POINT},param1=0.5,param2=0.5,unsigned")
+        fake.command(f"{TRACK_POINT},param1=0.5,param2=0.5,badkey")
+        fake.command(f"{REQUEST_MESSAGE},param1={CAMERA_INFORMATION},unsigned")
+        wait_for(lambda: link.status.rejected >= 3, 5.0, "three rejected")
+        time.sleep(0.3)
+        assert results(fake, TRACK_POINT) == [] and not fake.rows("CAMERA_INFORMATION") and camera.take() is None
+        fake.command(f"{TRACK_POINT},param1=0.5,param2=0.5")
+        wait_results(fake, TRACK_POINT, [IN_PROGRESS], "the signed one")
+        replayed = len([r for r in fake.rows() if r.get("dir") == "out" and r["type"] == "COMMAND_LONG"]) - 1
+        assert camera.take() is not None
+        fake.command(f"replay,{replayed}")  # the same bytes again: refused by the signature's timestamp
+        time.sleep(0.8)
+        assert results(fake, TRACK_POINT) == [IN_PROGRESS] and camera.take() is None

@@ -78,6 +78,8 @@ _POSITION_HOLD_NS = 300_000_000  # GLOBAL_POSITION_INT comes at a few Hz: hold i
 _UINT64_MAX = (1 << 64) - 1
 _ANGLE_MAX = 4 * math.pi  # |roll|, |pitch|, |yaw| beyond this is not an attitude
 _SIGNING_LINK_ID = 0
+#: MAVLink extension fields newer than some pymavlink releases still in use; sent only where known.
+_NEWER_EXTENSIONS = ("camera_device_id",)
 #: mavlink.* keys that ``MavlinkLink.apply`` changes on a running link; the others need a restart.
 LIVE_KEYS = (
     "command_sysids", "heartbeat_hz", "autopilot_timeout_s", "attitude_rate_hz", "timesync",
@@ -274,8 +276,11 @@ class MavlinkLink:
 
         Never blocks or raises on a dead link: returns False and counts a drop instead.
         """
-        msg = getattr(_M, f"MAVLink_{msg_type.lower()}_message")(**fields)
-        return self._send(msg, src_system)
+        cls = getattr(_M, f"MAVLink_{msg_type.lower()}_message")
+        for name in _NEWER_EXTENSIONS:
+            if name in fields and name not in cls.fieldnames:
+                del fields[name]  # an older pymavlink (the Jetson's) lacks it; 0 means "not used" anyway
+        return self._send(cls(**fields), src_system)
 
     def time_usec_for(self, t_monotonic_ns: int) -> int:
         """A time on our monotonic clock as autopilot time (us since its boot) when known, else our us."""
