@@ -414,6 +414,7 @@ class MavlinkLink:
         )
         self._att_requests += 1
         self._att_next_request_ns = now_ns + int(_ATTITUDE_RETRY_S * 1e9)
+        self._pos_pending_until_ns = 0  # the next SET_MESSAGE_INTERVAL ACK answers this request
         log.info("requested ATTITUDE: rate_hz=%.1f try=%d", self.cfg.attitude_rate_hz, self._att_requests)
 
     # --- the thread ----------------------------------------------------------------------------
