@@ -279,7 +279,8 @@ def test_range_and_position_of_a_target_of_known_geometry():
 def test_position_stream_and_geo_messages(fakes, tmp_path):
     port = free_port()
     fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}")
-    cfg = camera_config(**{"mavlink.outputs.follow_target": True, "mavlink.outputs.follow_target_sysid": 2})
+    cfg = camera_config(**{"mavlink.outputs.follow_target": True, "mavlink.outputs.follow_target_sysid": 2,
+                           "target.span_m": 0.5})
     link = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}", attitude_rate_hz=20.0))
     link.position_rate_hz = 10.0
     publisher = TargetPublisher(link, cfg.mavlink.outputs)

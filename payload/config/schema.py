@@ -374,4 +374,11 @@ class Config(Section):
     outputs: OutputsConfig = OutputsConfig()
     logging: LoggingConfig = LoggingConfig()
 
+    @model_validator(mode="after")
+    def _follow_needs_range(self):
+        if self.mavlink.outputs.follow_target and self.target.span_m is None:
+            raise ValueError("mavlink.outputs.follow_target needs target.span_m (the drones' span in metres, "
+                             "calibrated as docs/mavlink.md says): without a range there is nothing to follow")
+        return self
+
 
