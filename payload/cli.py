@@ -79,6 +79,12 @@ def _soak(args) -> int:
     return main_soak(args)
 
 
+def _geo_error(args) -> int:
+    from payload.eval.geo_error import main_geo_error
+
+    return main_geo_error(args)
+
+
 def _bench(args) -> int:
     from payload.bench.cli import main_bench
 
@@ -139,6 +145,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frame-size", nargs=2, type=int, default=None, metavar=("W", "H"),
                    help="--dets: frame size of the scored clips, for the bearing error (camera section of --config)")
     p.set_defaults(func=_eval)
+
+    p = sub.add_parser("geo-error", help="range-from-size and FOLLOW_TARGET position error on synthetic scenes of known geometry")
+    from payload.eval.geo_error import add_arguments as add_geo_error_arguments
+
+    add_geo_error_arguments(p)
+    p.add_argument("--synthetic", nargs="+", type=_seeds, default=[], metavar="SEED",
+                   help="scene seeds, e.g. 100-109 (default 100-109)")
+    p.set_defaults(func=_geo_error)
 
     p = sub.add_parser("cv", help="grouped cross-validation of GLAD over the Halmstad clips: per fold, mean +- sd")
     p.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")

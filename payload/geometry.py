@@ -208,3 +208,138 @@ class BearingModel:
             self.bearing_not_finite += 1
             return None
         return bearing
+
+
+# --- range and position ------------------------------------------------------------------------
+#
+# A drone of known span S (metres, rotor tip to rotor tip) that looks s pixels across through a
+# lens of focal length f pixels is at range r = S f / s. Its size in the image is uncertain by
+# the box's own noise (sigma_px, a pixel or two from the detector) and by its pose and motion
+# blur (a relative error: a drone seen end-on is narrower than its span, a blurred one wider),
+# so sigma_r / r = hypot(sigma_px / s, shape). With the vehicle's position and attitude at
+# capture time the target lies r along the bearing's ray.
+
+#: WGS-84 equatorial radius; a flat earth around the vehicle is exact to well under a metre at
+#: the few hundred metres a drone can be seen at.
+_EARTH_RADIUS_M = 6378137.0
+
+
+@dataclass(frozen=True)
+class Position:
+    """The vehicle's position (MAVLink GLOBAL_POSITION_INT): degrees, metres above mean sea level."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+
+    @property
+    def finite(self) -> bool:
+        return all(math.isfinite(v) for v in (self.lat_deg, self.lon_deg, self.alt_m))
+
+
+@dataclass(frozen=True)
+class TargetGeo:
+    """Where the target is: range along its bearing and, from the vehicle's position, lat/lon/alt."""
+
+    t_capture_ns: int
+    range_m: float
+    range_sigma_m: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float  # above mean sea level
+    h_acc_m: float  # 1 sigma, horizontal
+    v_acc_m: float  # 1 sigma, vertical
+
+    @property
+    def relative_uncertainty(self) -> float:
+        return self.range_sigma_m / self.range_m
+
+
+def apparent_size_px(xyxy: Sequence[float]) -> float:
+    """The box's longer side: a drone's span shows as its width seen from the side and from below."""
+    x1, y1, x2, y2 = (float(c) for c in xyxy)
+    return max(x2 - x1, y2 - y1)
+
+
+def range_from_size(size_px: float, focal_px: float, span_m: float, size_noise_px: float,
+                    shape_uncertainty: float) -> Tuple[float, float]:
+    """(range, 1-sigma range error) in metres of a drone ``span_m`` across that looks ``size_px``
+    across; (nan, nan) for a box without size."""
+    if not size_px > 0:
+        return float("nan"), float("nan")
+    r = span_m * focal_px / size_px
+    return r, r * math.hypot(size_noise_px / size_px, shape_uncertainty)
+
+
+def offset_position(origin: Position, ned_m: Sequence[float]) -> Position:
+    """The position ``ned_m`` (north, east, down; metres) away from ``origin``."""
+    n, e, d = (float(c) for c in ned_m)
+    lat = origin.lat_deg + math.degrees(n / _EARTH_RADIUS_M)
+    lon = origin.lon_deg + math.degrees(e / (_EARTH_RADIUS_M * math.cos(math.radians(origin.lat_deg))))
+    return Position(lat, lon, origin.alt_m - d)
+
+
+def ned_between(origin: Position, other: Position) -> np.ndarray:
+    """Inverse of ``offset_position``: (north, east, down) metres from ``origin`` to ``other``."""
+    n = math.radians(other.lat_deg - origin.lat_deg) * _EARTH_RADIUS_M
+    e = math.radians(other.lon_deg - origin.lon_deg) * _EARTH_RADIUS_M * math.cos(math.radians(origin.lat_deg))
+    return np.array([n, e, origin.alt_m - other.alt_m])
+
+
+def locate(target: Target, camera: CameraModel, mount: np.ndarray, attitude: Attitude, position: Position,
+           span_m: float, size_noise_px: float, shape_uncertainty: float) -> TargetGeo:
+    """The target's position from its box (range from size, direction from centre), the vehicle's
+    attitude and position at capture time. Values may be non-finite: the caller checks."""
+    focal_px = float(camera.matrix[0, 0] + camera.matrix[1, 1]) / 2.0
+    r, sigma_r = range_from_size(apparent_size_px(target.xyxy), focal_px, span_m, size_noise_px, shape_uncertainty)
+    u, v = target.center
+    ray_ned = rotation_zyx(attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad) @ (
+        np.asarray(mount, np.float64) @ camera.pixel_to_ray_cam(u, v))
+    where = offset_position(position, r * ray_ned)
+    # across the ray: the box centre's noise as an angle; along it: the range error
+    sigma_across = r * size_noise_px / focal_px
+    horizontal, vertical = math.hypot(ray_ned[0], ray_ned[1]), abs(float(ray_ned[2]))
+    h_acc = math.hypot(sigma_r * horizontal, sigma_across)
+    v_acc = math.hypot(sigma_r * vertical, sigma_across)
+    return TargetGeo(int(target.t_capture_ns), r, sigma_r, where.lat_deg, where.lon_deg, where.alt_m, h_acc, v_acc)
+
+
+class GeoModel:
+    """The ``target`` section at work: target -> TargetGeo, or None when there is no range
+    (no ``target.span_m``), no attitude or position at capture time, a value that is not finite,
+    or a range more uncertain than ``target.max_relative_uncertainty`` (each counted)."""
+
+    def __init__(self, cfg, bearings: BearingModel) -> None:
+        self.cfg = cfg  # TargetConfig
+        self.bearings = bearings
+        self.no_pose = 0  # withheld: no attitude or position at capture time
+        self.uncertain = 0  # withheld: range too uncertain
+        self.not_finite = 0  # withheld: a value not finite
+
+    def apply(self, cfg) -> List[str]:
+        keys = section_changes(self.cfg, cfg, "target")
+        self.cfg = cfg
+        return keys
+
+    @property
+    def enabled(self) -> bool:
+        return self.cfg.span_m is not None
+
+    def locate(self, target: Target, image_wh: Tuple[int, int], attitude: Optional[Attitude],
+               position: Optional[Position]) -> Optional[TargetGeo]:
+        cfg = self.cfg
+        if cfg.span_m is None or not target.measured:
+            return None
+        if attitude is None or position is None or not attitude.finite or not position.finite:
+            self.no_pose += 1
+            return None
+        geo = locate(target, self.bearings.camera(image_wh), self.bearings.mount, attitude, position,
+                     cfg.span_m, cfg.size_noise_px, cfg.shape_uncertainty)
+        if not all(math.isfinite(v) for v in (geo.range_m, geo.range_sigma_m, geo.lat_deg, geo.lon_deg, geo.alt_m,
+                                                geo.h_acc_m, geo.v_acc_m)):
+            self.not_finite += 1
+            return None
+        if geo.relative_uncertainty > cfg.max_relative_uncertainty:
+            self.uncertain += 1
+            return None
+        return geo

@@ -8,7 +8,9 @@ loaded and the first frame arrived, WATCHDOG=1 only after frames that went all t
 STATUS= line every summary interval. SIGHUP reloads the config: each component applies its own
 section and returns the keys it applied, restart-only keys are refused in one line, an invalid
 file keeps the running config. SIGTERM/SIGINT finish the current frame, flush the records and
-close the link. Records (detections.csv, decisions.csv) that cannot be written are reported
+close the link. The MAVLink camera protocol (payload.mavlink.camera) hands an operator's track
+point to the loop, which designates it to GLAD at the start of the next frame and reports the
+outcome after each frame. Records (detections.csv, decisions.csv) that cannot be written are reported
 once and detection goes on.
 """
 
@@ -34,7 +36,7 @@ from payload.config import (
 )
 from payload.detect.pipeline import Glad, GladResult
 from payload.errors import ConfigError
-from payload.geometry import BearingModel
+from payload.geometry import Attitude, BearingModel, GeoModel, TargetGeo
 from payload.records import DECISION_FIELDS, HEADER, CsvLog, decision_row, detection_rows
 from payload.sdnotify import Notifier
 from payload.types import Bearing, Frame
@@ -56,7 +58,8 @@ class Service:
     """The payload: one instance per process. ``run()`` returns the process exit code."""
 
     def __init__(self, cfg: Config, config_path: Optional[str] = None, max_frames: int = 0,
-                 on_result: Optional[Callable[[Frame, GladResult], None]] = None, verbose: bool = False) -> None:
+                 on_result: Optional[Callable[[Frame, GladResult], None]] = None, verbose: bool = False,
+                 stream=None) -> None:
         self.cfg = cfg
         self.config_path = config_path
         self.max_frames = max_frames
@@ -68,8 +71,11 @@ class Service:
         self._reload = threading.Event()
         self._ready_sent = False
         self.bearings = BearingModel(cfg.camera)
+        self.geo = GeoModel(cfg.target, self.bearings)
+        self.stream = stream  # payload.mavlink.camera.StreamDescription of the video output, or None
         self.link = None
         self.publisher = None
+        self.camera = None  # payload.mavlink.camera.CameraProtocol
         self.source: Optional[FrameSource] = None
         self.glad: Optional[Glad] = None
         self._detections_csv: Optional[CsvLog] = None
@@ -96,12 +102,16 @@ class Service:
         self.notifier.status("loading models")
         self.glad = Glad(cfg.detector)  # loads and warms up the ONNX models
         if cfg.mavlink.enabled:
+            from payload.mavlink.camera import CameraProtocol
             from payload.mavlink.link import MavlinkLink
             from payload.mavlink.outputs import TargetPublisher
 
             self.link = MavlinkLink(cfg.mavlink)
+            self.link.position_rate_hz = self._position_rate_hz(cfg)
+            self.camera = CameraProtocol(self.link, cfg, self.stream)
             self.link.start()
             self.publisher = TargetPublisher(self.link, cfg.mavlink.outputs)
+            self.publisher.camera = self.camera
         out = cfg.outputs
         if out.directory:
             try:
@@ -118,8 +128,15 @@ class Service:
         log.info("started source=%s mavlink=%s outputs=%s", cfg.capture.source,
                  cfg.mavlink.connection if cfg.mavlink.enabled else "off", cfg.outputs.directory or "off")
 
+    @staticmethod
+    def _position_rate_hz(cfg: Config) -> float:
+        """GLOBAL_POSITION_INT is asked of the autopilot only when geo outputs can use it."""
+        return cfg.mavlink.camera.position_rate_hz if cfg.target.span_m is not None else 0.0
+
     def _shutdown(self) -> None:
         self.notifier.stopping()
+        if self.camera is not None:
+            self.camera.cancel("shutting down")
         for closer in (self.source, self.link, self._detections_csv, self._decisions_csv):
             if closer is None:
                 continue
@@ -159,16 +176,25 @@ class Service:
             self._ready_sent = True
             log.info("ready first_frame=%d size=%dx%d", frame.index, *frame.size_wh)
         if self.link is not None and not self.link.detection_enabled:
+            if self.camera is not None:
+                self.camera.cancel("detection disabled by command")
             self.stats.skipped += 1
             self.stats.interval_frames += 1
             self._watchdog()  # paused by command, and alive
             return
         try:
+            if self.camera is not None:
+                self._designation(frame)
             result = self.glad.process(frame)
-            bearing = self._bearing(frame, result)
+            if self.camera is not None and self.camera.confirming:
+                if self.camera.after_frame(result.target is not None and result.target.measured) is False:
+                    self.glad.release()
+            attitude = self._attitude(frame, result)
+            bearing = self._bearing(frame, result, attitude)
+            geo = self._geo(frame, result, attitude)
             sent = 0
             if self.publisher is not None:
-                sent = self.publisher.publish(result.target, bearing, frame.size_wh)
+                sent = self.publisher.publish(result.target, bearing, frame.size_wh, geo)
             if self._detections_csv is not None:
                 self._detections_csv.write_rows(detection_rows(frame.index, result.detections))
             if self._decisions_csv is not None:
@@ -200,12 +226,33 @@ class Service:
         self._faults_reported = self.stats.faults
         self._fault_report_s = now
 
-    def _bearing(self, frame: Frame, result: GladResult) -> Optional[Bearing]:
-        if result.target is None:
+    def _designation(self, frame: Frame) -> None:
+        """An operator's track point or stop from the camera protocol, taken at the start of a frame
+        (commands arrive on the link thread; GLAD is only touched here)."""
+        self.camera.set_image_size(frame.size_wh)
+        request = self.camera.take()
+        if request is None:
+            return
+        if request.stop:
+            self.glad.release()
+        else:
+            self.glad.designate(request.center_px(frame.size_wh), request.size_px(frame.size_wh))
+
+    def _attitude(self, frame: Frame, result: GladResult) -> Optional[Attitude]:
+        if result.target is None or self.link is None:
             return None
         # The link drops non-finite ATTITUDE at the door; the bearing model still refuses a non-finite result.
-        attitude = self.link.attitude_at(frame.t_capture_ns) if self.link is not None else None
+        return self.link.attitude_at(frame.t_capture_ns)
+
+    def _bearing(self, frame: Frame, result: GladResult, attitude: Optional[Attitude]) -> Optional[Bearing]:
+        if result.target is None:
+            return None
         return self.bearings.bearing(result.target, frame.size_wh, attitude)
+
+    def _geo(self, frame: Frame, result: GladResult, attitude: Optional[Attitude]) -> Optional[TargetGeo]:
+        if result.target is None or self.link is None or not self.geo.enabled:
+            return None
+        return self.geo.locate(result.target, frame.size_wh, attitude, self.link.position_at(frame.t_capture_ns))
 
     def _watchdog(self) -> None:
         interval = self.notifier.watchdog_interval_s
@@ -217,7 +264,8 @@ class Service:
     # --- reporting ------------------------------------------------------------------------
 
     def _state(self) -> str:
-        return "searching" if self._last_result is None else self._last_result.state
+        state = "searching" if self._last_result is None else self._last_result.state
+        return state + ",designated" if self.glad is not None and self.glad.designated else state
 
     def _maybe_summary(self) -> None:
         if time.monotonic() - self.stats.interval_start_s >= self.cfg.logging.summary_interval_s:
@@ -296,11 +344,15 @@ class Service:
         """Hand each running component its section; the union of the keys they applied."""
         applied = self.glad.update_config(new.detector) if self.glad is not None else []
         applied += self.bearings.apply(new.camera)
+        applied += self.geo.apply(new.target)
         applied += self._apply_logging(new.logging)
         if self.publisher is not None:
             applied += self.publisher.apply(new.mavlink.outputs)
         if self.link is not None:
             applied += self.link.apply(new.mavlink)
+            self.link.position_rate_hz = self._position_rate_hz(new)
+        if self.camera is not None:
+            applied += self.camera.apply(new)
         return applied
 
     def _apply_logging(self, cfg: LoggingConfig) -> List[str]:

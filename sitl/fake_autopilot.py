@@ -14,10 +14,13 @@ It is system 1, component 1 (MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA) an
   with ``--scene-seed N`` (offered only when ``payload.synth.scene`` is importable) the
   attitude is instead the synthetic scene's camera (roll, pitch, yaw) at frame
   ``int(t * --scene-fps)``, so a payload rendering the same scene sees a consistent vehicle;
+- answers MAV_CMD_SET_MESSAGE_INTERVAL for GLOBAL_POSITION_INT likewise and streams the
+  vehicle's position: ``HOME`` moving east at 2 m/s, or with ``--scene-seed`` the scene's camera
+  position (world x = east, y = down, z = north) around ``HOME``;
 - sends COMMAND_LONG like a ground station (system 255, component 190 by default) at given
   times (``--command-at T:ACTION``) or when a line ``ACTION`` arrives on stdin
   (``--stdin-control``). ACTION = enable | disable | NUMBER (a MAV_CMD id), optionally
-  followed by ``,sysid=N``, ``,compid=N``, ``,param1=X``, ``,unsigned``, and for attacks on
+  followed by ``,sysid=N``, ``,compid=N``, ``,param1=X`` (to ``param7``), ``,unsigned``, and for attacks on
   signing ``,badkey`` (signed with a random key), ``,timestamp=N``, ``,linkid=N`` (default 7);
   ``replay,I`` sends the bytes of the I-th command sent (0-based) again, unchanged;
 - with ``--signing-key FILE`` (32 raw bytes or 64 hex characters) signs what it sends and
@@ -47,6 +50,8 @@ from pymavlink import mavutil  # noqa: E402
 
 M = mavutil.mavlink
 GCS_COMPID = 190  # MAV_COMP_ID_MISSIONPLANNER
+HOME = (47.397742, 8.545594, 488.0)  # lat, lon (deg), alt (m AMSL) of the scripted flight
+EARTH_RADIUS_M = 6378137.0
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -72,13 +77,30 @@ class SceneAttitude:
         self.frames = iter(scene)
         self.index = -1
         self.rpy = (0.0, 0.0, 0.0)
+        self.ned = (0.0, 0.0, 0.0)
 
-    def __call__(self, t_s):
+    def _advance(self, t_s):
         want = int(t_s * self.fps)
         while self.index < want:
-            self.rpy = tuple(float(a) for a in next(self.frames).camera_rpy_rad)
+            frame = next(self.frames)
+            self.rpy = tuple(float(a) for a in frame.camera_rpy_rad)
+            x, y, z = frame.camera_position_m
+            self.ned = (z, x, y)
             self.index += 1
+
+    def __call__(self, t_s):
+        self._advance(t_s)
         return self.rpy
+
+    def position(self, t_s):
+        """(north, east, down) metres from HOME at t_s."""
+        self._advance(t_s)
+        return self.ned
+
+
+def flight_ned(t_s):
+    """The scripted vehicle's (north, east, down) metres from HOME: east at 2 m/s, 30 m up."""
+    return 0.0, 2.0 * t_s, -30.0
 
 
 def trajectory(t_s):
@@ -103,7 +125,7 @@ def parse_action(text, default_sysid):
     if not parts:
         raise ValueError("empty command")
     head = parts[0].lower()
-    out = {"sysid": default_sysid, "compid": GCS_COMPID, "signed": True, "param1": 0.0, "badkey": False,
+    out = {"sysid": default_sysid, "compid": GCS_COMPID, "signed": True, "badkey": False,
            "timestamp": None, "linkid": 7}
     if head in ("enable", "disable"):
         out["command"] = M.MAV_CMD_USER_1
@@ -117,7 +139,8 @@ def parse_action(text, default_sysid):
             out["badkey"] = True
         else:
             key, value = p.split("=", 1)
-            out[key] = float(value) if key == "param1" else int(value)
+            out[key] = float(value) if key.startswith("param") else int(value)
+    out.setdefault("param1", 0.0)
     return out
 
 
@@ -135,6 +158,9 @@ class FakeAutopilot:
         self.attitude_period_ns = int(1e9 / args.attitude_hz) if args.attitude_hz > 0 else 0
         scene_seed = getattr(args, "scene_seed", None)
         self.attitude_of = trajectory if scene_seed is None else SceneAttitude(_scene_class(), scene_seed, args.scene_fps)
+        self.position_of = flight_ned if scene_seed is None else self.attitude_of.position
+        self.position_period_ns = 0
+        self.next_position_ns = 0
         self.next_attitude_ns = 0
         self.next_heartbeat_ns = 0
         self.sent = []  # bytes of each command sent, for replay
@@ -170,7 +196,7 @@ class FakeAutopilot:
                 self.conn.mav.signing.timestamp += 1  # the next command is newer, however fast it follows
         msg = M.MAVLink_command_long_message(
             self.args.target_sysid, self.args.target_compid, spec["command"], 0,
-            spec["param1"], 0, 0, 0, 0, 0, 0,
+            *(spec.get("param%d" % i, 0.0) for i in range(1, 8)),
         )
         gcs.send(msg)
         buf = bytes(msg.get_msgbuf())
@@ -204,6 +230,10 @@ class FakeAutopilot:
             else:
                 self.attitude_period_ns = int(msg.param2 * 1000) if msg.param2 > 0 else 100_000_000
             self.next_attitude_ns = 0
+        elif msg.command == M.MAV_CMD_SET_MESSAGE_INTERVAL and int(msg.param1) == M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            result = M.MAV_RESULT_ACCEPTED
+            self.position_period_ns = 0 if msg.param2 < 0 else int(msg.param2 * 1000) if msg.param2 > 0 else 200_000_000
+            self.next_position_ns = 0
         ack = M.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         self.conn.mav.send(ack)
 
@@ -218,6 +248,16 @@ class FakeAutopilot:
             roll, pitch, yaw = self.attitude_of(boot_ms / 1000.0)
             self.conn.mav.send(M.MAVLink_attitude_message(boot_ms, roll, pitch, yaw, 0.0, 0.0, 0.0))
             self.next_attitude_ns = max(self.next_attitude_ns + self.attitude_period_ns, now_ns)
+        if self.position_period_ns and now_ns >= self.next_position_ns:
+            boot_ms = (now_ns - self.start_ns) // 1_000_000
+            n, e, d = self.position_of(boot_ms / 1000.0)
+            lat = HOME[0] + math.degrees(n / EARTH_RADIUS_M)
+            lon = HOME[1] + math.degrees(e / (EARTH_RADIUS_M * math.cos(math.radians(HOME[0]))))
+            alt = HOME[2] - d
+            self.conn.mav.send(M.MAVLink_global_position_int_message(
+                boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)), int(round(-d * 1000)),
+                0, 0, 0, 65535))
+            self.next_position_ns = max(self.next_position_ns + self.position_period_ns, now_ns)
         elapsed_s = (now_ns - self.start_ns) / 1e9
         while self.pending and self.pending[0][0] <= elapsed_s:
             self.gcs_send(self.pending.pop(0)[1])

@@ -42,6 +42,10 @@ def running_values(svc):
     add("detector", g.cfg)  # the switches the pipeline reads (enabled, modules, ...)
     seen.setdefault("detector.search_region.measurement_noise", []).append(float(g.region._kf.R[0, 0]) ** 0.5)
     add("camera", svc.bearings.cfg)
+    add("target", svc.geo.cfg)
+    if svc.camera is not None:
+        add("mavlink.camera", svc.camera.cfg)
+        seen.setdefault("camera.pixel_size_um", []).append(svc.camera.camera_cfg.pixel_size_um)
     if svc.publisher is not None:
         add("mavlink.outputs", svc.publisher.cfg)
     if svc.link is not None:  # the link's keys (mavlink.outputs is the publisher's)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from payload.config import MavlinkConfig, MavlinkOutputsConfig
+from payload.geometry import TargetGeo
 from payload.mavlink.link import MavlinkLink
 from payload.mavlink.outputs import TargetPublisher
 from payload.mavlink.transport import mavlink
@@ -91,3 +92,35 @@ def test_non_finite_box_is_withheld(wire):
     assert publisher.publish(target(xyxy=(NAN, 1.0, 5.0, 5.0)), None, (640, 480)) == 0
     assert publisher.stats.not_finite == 1
     assert read() == []
+
+
+_GEO_UNKNOWN = ("vel_n", "vel_e", "vel_d", "vel_acc", "hdg", "hdg_acc")  # NaN = MAVLink's "unknown"
+
+
+def geo(**bad):
+    values = dict(t_capture_ns=time.monotonic_ns(), range_m=80.0, range_sigma_m=8.0, lat_deg=47.4, lon_deg=8.55,
+                  alt_m=500.0, h_acc_m=6.0, v_acc_m=3.0)
+    values.update(bad)
+    return TargetGeo(**values)
+
+
+@pytest.mark.parametrize("bad", [dict(), dict(lat_deg=NAN), dict(lon_deg=INF), dict(alt_m=-INF), dict(h_acc_m=NAN),
+                                 dict(v_acc_m=INF), dict(range_m=NAN)])
+def test_non_finite_geo_is_withheld_and_counted(wire, bad):
+    make, read = wire
+    publisher = make(follow_target=True, debug_vect=False)
+    publisher.publish(target(), None, (640, 480), geo(**bad))
+    msgs = read()
+    for m in msgs:
+        fields = m.to_dict()
+        for name in _GEO_UNKNOWN + ("radius",):
+            fields.pop(name, None)
+        assert all(math.isfinite(v) for v in fields.values() if isinstance(v, float)), fields
+        assert all(math.isfinite(v) for v in fields.get("position_cov", []))
+    types = sorted(m.get_type() for m in msgs)
+    if not bad:
+        assert types == ["CAMERA_TRACKING_GEO_STATUS", "CAMERA_TRACKING_IMAGE_STATUS", "FOLLOW_TARGET"]
+    else:
+        # range is not in FOLLOW_TARGET: a NaN range withholds only the geo status
+        assert types == ["CAMERA_TRACKING_IMAGE_STATUS"] + ["FOLLOW_TARGET"] * ("range_m" in bad)
+        assert publisher.stats.not_finite == 2 - ("range_m" in bad)

@@ -97,6 +97,11 @@ def _changed(key, value):
         "detector.switcher.pick": "distance",
         "mavlink.outputs.debug_vect_frame": "level",
         "mavlink.command_sysids": [42],
+        "mavlink.outputs.follow_target_sysid": 2,
+        "mavlink.camera.vendor": "acme",
+        "mavlink.camera.model": "eye",
+        "camera.pixel_size_um": 3.0,
+        "target.span_m": 0.4,
         "logging.level": "DEBUG",
     }
     if key in special:
@@ -172,8 +177,9 @@ def test_reload_applies_every_reloadable_key(reloaded):
     assert set(keys) <= set(applied)
     refused = re.findall(r"need a restart and are not applied yet: (.*)", log)
     assert not any(k in line.split(", ") for line in refused for k in keys)
-    # turning landing_target on by reload says what start-up says
+    # turning landing_target (follow_target) on by reload says what start-up says
     assert log.count("mavlink.outputs.landing_target is on: a precision-landing autopilot may steer") == 1
+    assert log.count("mavlink.outputs.follow_target is on: an autopilot in follow mode will chase") == 1
     assert "Traceback" not in log
 
 

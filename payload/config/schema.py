@@ -81,6 +81,9 @@ class CameraConfig(Section):
         None, description="Intrinsics [fx, fy, cx, cy] in pixels at the capture resolution."
     )
     distortion: Optional[List[float]] = Field(None, description="OpenCV distortion [k1, k2, p1, p2, k3].")
+    pixel_size_um: Optional[float] = Field(
+        None, gt=0, le=100, description="Sensor pixel pitch in micrometres; gives CAMERA_INFORMATION its focal length and sensor size in mm (null = unknown)."
+    )
     mount: MountConfig = MountConfig()
 
     @model_validator(mode="after")
@@ -266,8 +269,44 @@ class SigningConfig(Section):
         return self
 
 
+class TargetConfig(Section):
+    """What the payload knows of the drones it looks for: their size gives a range from the box."""
+
+    span_m: Optional[float] = Field(
+        None, gt=0, le=100, description="Rotor tip to rotor tip of the drones looked for, metres; null = no range (no geo outputs)."
+    )
+    size_noise_px: float = Field(1.5, ge=0, le=100, description="Box size noise, px (1 sigma): range uncertainty grows as it over the box size.")
+    shape_uncertainty: float = Field(
+        0.2, ge=0, le=10, description="Relative size error from the drone's pose and blur (1 sigma; measured on synthetic scenes, docs/mavlink.md)."
+    )
+    max_relative_uncertainty: float = Field(
+        0.35, gt=0, le=10, description="Geo outputs are withheld when range sigma / range exceeds this."
+    )
+
+
+class MavlinkCameraConfig(Section):
+    """The MAVLink camera protocol: what CAMERA_INFORMATION says, and operator designation."""
+
+    vendor: str = Field("glad-payload", min_length=1, max_length=32)
+    model: str = Field("GLAD detector", min_length=1, max_length=32)
+    designate_frames: int = Field(
+        8, ge=1, le=1000, description="Frames the local detectors get to confirm a target at an operator's track point before the command fails."
+    )
+    position_rate_hz: float = Field(
+        10.0, ge=0, le=100, description="GLOBAL_POSITION_INT stream asked of the autopilot (geo outputs need it); 0 = don't ask."
+    )
+
+
 class MavlinkOutputsConfig(Section):
     tracking_image_status: bool = True
+    tracking_geo_status: bool = Field(True, description="CAMERA_TRACKING_GEO_STATUS when target.span_m and the vehicle's position give one.")
+    follow_target: bool = Field(
+        False, description="WARNING: FOLLOW_TARGET lets an autopilot in follow mode chase the detected drone."
+    )
+    follow_target_sysid: Optional[int] = Field(
+        None, ge=1, le=255,
+        description="System id FOLLOW_TARGET is sent as (the autopilot's FOLL_SYSID; ArduPilot ignores its own id); null = mavlink.system_id.",
+    )
     debug_vect: bool = True
     debug_vect_frame: Literal["body", "level"] = "body"
     landing_target: bool = Field(
@@ -320,6 +359,7 @@ class MavlinkConfig(Section):
     retry: Retry = Retry()
     signing: SigningConfig = SigningConfig()
     outputs: MavlinkOutputsConfig = MavlinkOutputsConfig()
+    camera: MavlinkCameraConfig = MavlinkCameraConfig()
 
     @field_validator("connection")
     @classmethod
@@ -346,9 +386,17 @@ class LoggingConfig(Section):
 class Config(Section):
     capture: CaptureConfig = CaptureConfig()
     camera: CameraConfig = CameraConfig()
+    target: TargetConfig = TargetConfig()
     detector: DetectorConfig = DetectorConfig()
     mavlink: MavlinkConfig = MavlinkConfig()
     outputs: OutputsConfig = OutputsConfig()
     logging: LoggingConfig = LoggingConfig()
+
+    @model_validator(mode="after")
+    def _follow_needs_range(self):
+        if self.mavlink.outputs.follow_target and self.target.span_m is None:
+            raise ValueError("mavlink.outputs.follow_target needs target.span_m (the drones' span in metres, "
+                             "calibrated as docs/mavlink.md says): without a range there is nothing to follow")
+        return self
 
 

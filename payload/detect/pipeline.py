@@ -137,6 +137,7 @@ class Glad:
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
         self._ego_cfg = _ego_motion_config(cfg)
+        self.designated = False  # the lock is an operator's (designate): no retarget may take it
 
     @staticmethod
     def _local_available(cfg: DetectorConfig) -> bool:
@@ -183,7 +184,30 @@ class Glad:
             self.models.classifier.update_config(cfg.classifier)
         return applied
 
+    # --- operator designation (MAVLink camera track point / rectangle) --------------------------
+
+    def designate(self, center_xy: Tuple[float, float], size_wh: Tuple[float, float]) -> None:
+        """Local mode with the search region on an operator's point: the next frames' local
+        detectors look there (the lock check judges what they find afresh) and, while this lock
+        holds, no stronger hit elsewhere takes it (no retarget). Lost after max_local_misses as
+        any lock; a target the global search then finds is an automatic one again."""
+        self.region.start((float(center_xy[0]), float(center_xy[1])), (float(size_wh[0]), float(size_wh[1])), 0.0)
+        self.switcher.reset()
+        self.switcher.after(hit=True)  # local from the next frame
+        self.lock.reset()
+        self.verifier.reset()
+        self.designated = True
+
+    def release(self) -> None:
+        """Back to automatic global search (operator's stop, or a designation not confirmed)."""
+        self.region.reset()
+        self.switcher.reset()
+        self.lock.reset()
+        self.verifier.reset()
+        self.designated = False
+
     def reset(self) -> None:
+        self.designated = False
         self.switcher.reset()
         self.region.reset()
         self.lock.reset()
@@ -209,7 +233,8 @@ class Glad:
         self._verify(frame, grey, result, timings)
         if result.target is not None:
             result = replace(result, lock_p=self.verifier.probability)
-        if not (self.lock.confirmed and self.verifier.verified) and (len(result.detections) or result.target is not None):
+        verified = self.verifier.verified or self.designated  # the operator picked this one: it needs no drone verdict
+        if not (self.lock.confirmed and verified) and (len(result.detections) or result.target is not None):
             # followed, not reported: the classifier has not confirmed this lock (LockCheck), or
             # its recent frames have not convinced the verifier (LockVerifier)
             result = replace(result, detections=Detections.empty(), target=None, following=True)
@@ -366,6 +391,7 @@ class Glad:
 
     def _acquire(self, frame: Frame, best: Detections, timings: Dict[str, float]) -> Target:
         """A new target: the search region starts around it and its lock is judged afresh."""
+        self.designated = False
         self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
         self.lock.reset()
         self.verifier.reset()
@@ -377,6 +403,8 @@ class Glad:
                   timings: Dict[str, float]) -> Detections:
         """The strongest local appearance hit beyond the gate (``far``) if the global detector would
         have taken it (score > T0), the classifier confirms it, and it beats the chosen near hit."""
+        if self.designated:
+            return far[:0]  # the operator chose the target: it is not traded for a stronger one
         floor = max(self.cfg.global_.appearance.confidence, float(near_best.score[0]) if len(near_best) else 0.0)
         far = far[(far.module == LAD) & (far.score > floor)]
         if not len(far):

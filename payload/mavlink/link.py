@@ -22,6 +22,8 @@ from a system id in ``mavlink.command_sysids``; others are ignored and logged:
 - ``MAV_CMD_USER_1`` (31010), ``param1 = 1``: enable detection -> ACK ACCEPTED
 - ``MAV_CMD_USER_1`` (31010), ``param1 = 0``: disable detection -> ACK ACCEPTED
   (other param1 values -> ACK DENIED)
+- commands taken by a handler added with ``add_command_handler`` (the camera protocol,
+  ``payload.mavlink.camera``) are answered there;
 - any other command addressed to our component -> ACK UNSUPPORTED. Broadcast commands
   (target_component 0) we do not handle get no ACK, so that we never answer for the
   autopilot.
@@ -36,6 +38,10 @@ dropped at the door (``status.nonfinite``); ``udpin:`` talks only to the address
 heartbeats come from and, while the autopilot lives, ignores other senders (``status.foreign``);
 rejected and ignored input is logged at most once per source per 10 s, with counts.
 
+Position: with ``position_rate_hz`` set (by the service, when geo outputs need it) the link asks
+the autopilot for GLOBAL_POSITION_INT like ATTITUDE, and ``position_at`` interpolates it at a
+frame's capture time. Samples without a fix (lat = lon = 0) or out of range are not kept.
+
 Reload: ``apply(new_cfg)`` applies the live keys (``LIVE_KEYS``) and says which.
 """
 
@@ -47,12 +53,12 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Deque, Dict, List, Optional, Tuple
+from typing import Any, Callable, Deque, Dict, List, Optional, Tuple
 
 # The connection check and the key reading live in the config layer, so that check-config runs them too.
 from payload.config import MavlinkConfig, flat_config, load_signing_key, section_changes  # noqa: F401  (load_signing_key re-exported)
 from payload.config import check_connection as _check_connection
-from payload.geometry import Attitude
+from payload.geometry import Attitude, Position
 from payload.mavlink.ratelog import RateLimitedLog
 from payload.mavlink.signing import SigningState, default_state_path
 from payload.mavlink.transport import SendDropped, UdpTransport, open_transport
@@ -67,9 +73,13 @@ _TIMESYNC_PERIOD_S = 1.0
 _TIMESYNC_SAMPLES = 8
 _ATTITUDE_BUFFER = 512
 _ATTITUDE_HOLD_NS = 100_000_000  # nearest sample is used this far outside the buffered span
+_POSITION_BUFFER = 128
+_POSITION_HOLD_NS = 300_000_000  # GLOBAL_POSITION_INT comes at a few Hz: hold it a little longer
 _UINT64_MAX = (1 << 64) - 1
 _ANGLE_MAX = 4 * math.pi  # |roll|, |pitch|, |yaw| beyond this is not an attitude
 _SIGNING_LINK_ID = 0
+#: MAVLink extension fields newer than some pymavlink releases still in use; sent only where known.
+_NEWER_EXTENSIONS = ("camera_device_id",)
 #: mavlink.* keys that ``MavlinkLink.apply`` changes on a running link; the others need a restart.
 LIVE_KEYS = (
     "command_sysids", "heartbeat_hz", "autopilot_timeout_s", "attitude_rate_hz", "timesync",
@@ -147,6 +157,13 @@ class MavlinkLink:
         # ATTITUDE samples in the autopilot's time base: (t_boot_ns, roll, pitch, yaw)
         self._att: Deque[Tuple[int, float, float, float]] = deque(maxlen=_ATTITUDE_BUFFER)
         self._att_last_rx_ns: Optional[int] = None
+        # GLOBAL_POSITION_INT samples: (t_boot_ns, lat_deg, lon_deg, alt_m); asked for at position_rate_hz
+        self.position_rate_hz = 0.0
+        self._pos: Deque[Tuple[int, float, float, float]] = deque(maxlen=_POSITION_BUFFER)
+        self._pos_requests = 0
+        self._pos_next_request_ns = 0
+        self._pos_pending_until_ns = 0  # an ACK before this answers our position request
+        self._command_handlers: List[Callable[[Any], bool]] = []
         # time sync
         self._ts_pending: Dict[int, int] = {}
         self._ts_samples: Deque[Tuple[int, int]] = deque(maxlen=_TIMESYNC_SAMPLES)
@@ -252,13 +269,18 @@ class MavlinkLink:
             log.info("mavlink link applied: %s", ", ".join("%s=%s" % (k[len("mavlink."):], values[k]) for k in changed))
         return changed
 
-    def send_message(self, msg_type: str, /, **fields: Any) -> bool:
-        """Send one MAVLink message by name, e.g. ``send_message("DEBUG_VECT", name=b"TGT_BRG", ...)``.
+    def send_message(self, msg_type: str, /, src_system: Optional[int] = None, **fields: Any) -> bool:
+        """Send one MAVLink message by name, e.g. ``send_message("DEBUG_VECT", name=b"TGT_BRG", ...)``,
+        from our system id or, with ``src_system``, from another (FOLLOW_TARGET: ArduPilot follows
+        only another system than itself).
 
         Never blocks or raises on a dead link: returns False and counts a drop instead.
         """
-        msg = getattr(_M, f"MAVLink_{msg_type.lower()}_message")(**fields)
-        return self._send(msg)
+        cls = getattr(_M, f"MAVLink_{msg_type.lower()}_message")
+        for name in _NEWER_EXTENSIONS:
+            if name in fields and name not in cls.fieldnames:
+                del fields[name]  # an older pymavlink (the Jetson's) lacks it; 0 means "not used" anyway
+        return self._send(cls(**fields), src_system)
 
     def time_usec_for(self, t_monotonic_ns: int) -> int:
         """A time on our monotonic clock as autopilot time (us since its boot) when known, else our us."""
@@ -294,15 +316,51 @@ class MavlinkLink:
         yaw = math.remainder(y0 + a * dyaw, 2 * math.pi)
         return Attitude(r0 + a * (r1 - r0), p0 + a * (p1 - p0), yaw)
 
+    def position_at(self, t_monotonic_ns: int) -> Optional[Position]:
+        """The vehicle position at a frame's capture time, interpolated from recent GLOBAL_POSITION_INT.
+
+        None without a time offset, without samples, or when the time is more than 300 ms outside
+        the buffered samples."""
+        with self._lock:
+            offset, _ = self._offset()
+            samples = list(self._pos)
+        if offset is None or not samples:
+            return None
+        t = int(t_monotonic_ns) + offset
+        times = [s[0] for s in samples]
+        i = bisect.bisect_left(times, t)
+        if i == 0 or i == len(samples):
+            nearest = samples[0] if i == 0 else samples[-1]
+            if abs(t - nearest[0]) > _POSITION_HOLD_NS:
+                return None
+            return Position(nearest[1], nearest[2], nearest[3])
+        t0, *p0 = samples[i - 1]
+        t1, *p1 = samples[i]
+        a = (t - t0) / float(t1 - t0) if t1 > t0 else 0.0
+        return Position(*(x0 + a * (x1 - x0) for x0, x1 in zip(p0, p1)))
+
+    def add_command_handler(self, handler: Callable[[Any], bool]) -> None:
+        """``handler(command_long)`` is offered each COMMAND_LONG addressed to our component from an
+        allowed system id (signing and sysid checks done); it returns True when it handled (and
+        acknowledged) the command. It runs on the link thread, under the link's lock."""
+        self._command_handlers.append(handler)
+
+    def ack(self, command: int, result: int, to: Tuple[int, int], progress: int = 0) -> bool:
+        """Send COMMAND_ACK for ``command`` to (sysid, compid); safe from any thread."""
+        return self._send(_M.MAVLink_command_ack_message(command, result, progress, 0, to[0], to[1]))
+
     # --- sending -----------------------------------------------------------------------------
 
-    def _send(self, msg: Any) -> bool:
+    def _send(self, msg: Any, src_system: Optional[int] = None) -> bool:
         with self._lock:
             conn = self._conn
             if conn is None or self._broken or not conn.can_send():
                 self._dropped += 1
                 return False
+            own = conn.mav.srcSystem
             try:
+                if src_system is not None:
+                    conn.mav.srcSystem = src_system
                 conn.mav.send(msg)
             except SendDropped:
                 self._dropped += 1
@@ -312,6 +370,8 @@ class MavlinkLink:
                 self._broken = True
                 log.warning("mavlink write failed: connection=%s error=%s", self.cfg.connection, exc)
                 return False
+            finally:
+                conn.mav.srcSystem = own
             self._sent += 1
             return True
 
@@ -330,6 +390,19 @@ class MavlinkLink:
             )
         )
 
+    def _request_position(self, now_ns: int) -> None:
+        sysid, compid = self._ap_id  # type: ignore[misc]
+        self._send(
+            _M.MAVLink_command_long_message(
+                sysid, compid, _M.MAV_CMD_SET_MESSAGE_INTERVAL, self._pos_requests,
+                _M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 1e6 / self.position_rate_hz, 0, 0, 0, 0, 0,
+            )
+        )
+        self._pos_requests += 1
+        self._pos_next_request_ns = now_ns + int(_ATTITUDE_RETRY_S * 1e9)
+        self._pos_pending_until_ns = self._pos_next_request_ns
+        log.info("requested GLOBAL_POSITION_INT: rate_hz=%.1f try=%d", self.position_rate_hz, self._pos_requests)
+
     def _request_attitude(self, now_ns: int) -> None:
         sysid, compid = self._ap_id  # type: ignore[misc]
         interval_us = 1e6 / self.cfg.attitude_rate_hz
@@ -341,6 +414,7 @@ class MavlinkLink:
         )
         self._att_requests += 1
         self._att_next_request_ns = now_ns + int(_ATTITUDE_RETRY_S * 1e9)
+        self._pos_pending_until_ns = 0  # the next SET_MESSAGE_INTERVAL ACK answers this request
         log.info("requested ATTITUDE: rate_hz=%.1f try=%d", self.cfg.attitude_rate_hz, self._att_requests)
 
     # --- the thread ----------------------------------------------------------------------------
@@ -458,6 +532,15 @@ class MavlinkLink:
             and now_ns >= self._att_next_request_ns
         ):
             self._request_attitude(now_ns)
+        elif (
+            self.position_rate_hz > 0
+            and (self._att_acked or self.cfg.attitude_rate_hz <= 0 or self._att_requests >= _ATTITUDE_MAX_TRIES)
+            and not self._pos
+            and self._pos_requests < _ATTITUDE_MAX_TRIES
+            and now_ns >= self._pos_next_request_ns
+        ):
+            # after ATTITUDE's request is answered: an ACK does not say which request it answers
+            self._request_position(now_ns)
 
     # --- receiving -----------------------------------------------------------------------------
 
@@ -497,10 +580,17 @@ class MavlinkLink:
             self._att_last_rx_ns = now_ns
             self._coarse.append(t_boot_ns - now_ns)
             self._att_acked = True  # it streams: no need to ask again
+        elif kind == "GLOBAL_POSITION_INT":
+            self._on_position(msg, now_ns)
         elif kind == "SYSTEM_TIME":
             self._coarse.append(int(msg.time_boot_ms) * 1_000_000 - now_ns)
         elif kind == "TIMESYNC":
             self._on_timesync(msg, now_ns)
+        elif kind == "COMMAND_ACK" and msg.command == _M.MAV_CMD_SET_MESSAGE_INTERVAL and now_ns < self._pos_pending_until_ns:
+            self._pos_pending_until_ns = 0
+            if msg.result != _M.MAV_RESULT_ACCEPTED:
+                log.warning("GLOBAL_POSITION_INT request refused: result=%d (no geo outputs)", msg.result)
+                self._pos_requests = _ATTITUDE_MAX_TRIES  # refused: do not insist
         elif kind == "COMMAND_ACK" and msg.command == _M.MAV_CMD_SET_MESSAGE_INTERVAL:
             self._att_acked = msg.result == _M.MAV_RESULT_ACCEPTED
             level = logging.INFO if self._att_acked else logging.WARNING
@@ -537,6 +627,9 @@ class MavlinkLink:
             self._ts_pending.clear()
             self._coarse.clear()
             self._att.clear()
+            self._pos.clear()
+            self._pos_requests = 0
+            self._pos_next_request_ns = 0
             self._att_requests = 0
             self._att_acked = False
             self._att_next_request_ns = 0
@@ -546,6 +639,19 @@ class MavlinkLink:
                 "found" if first else "back", src[0], src[1], msg.autopilot, msg.type,
             )
             self._periodic(now_ns)
+
+    def _on_position(self, msg: Any, now_ns: int) -> None:
+        lat, lon = msg.lat / 1e7, msg.lon / 1e7
+        if (msg.lat == 0 and msg.lon == 0) or abs(lat) > 90 or abs(lon) > 180:
+            return  # no fix yet, or not a position
+        t_boot_ns = int(msg.time_boot_ms) * 1_000_000
+        if self._pos and t_boot_ns <= self._pos[-1][0]:
+            if t_boot_ns < self._pos[-1][0] - 1_000_000_000:
+                self._pos.clear()  # autopilot time went back: it rebooted
+            else:
+                return
+        self._pos.append((t_boot_ns, lat, lon, msg.alt / 1000.0))
+        self._coarse.append(t_boot_ns - now_ns)
 
     def _on_timesync(self, msg: Any, now_ns: int) -> None:
         if msg.tc1 == 0:
@@ -597,6 +703,8 @@ class MavlinkLink:
                 self._send_heartbeat()  # the state shows in system_status at once
             else:
                 self._ack(msg, _M.MAV_RESULT_DENIED)
+        elif msg.target_component != 0 and any(handler(msg) for handler in self._command_handlers):
+            pass
         elif msg.target_component != 0:
             self._ack(msg, _M.MAV_RESULT_UNSUPPORTED)
 

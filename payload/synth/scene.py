@@ -40,6 +40,9 @@ class SceneFrame:
     ``target_span_px``: the drone's rotor-tip-to-rotor-tip size in this frame, visible or not.
     ``target_visible``: the share of the drone's pixels (alpha-weighted) that are in the frame and
     not hidden by clutter (1.0 = fully visible, 0.0 = out of view or hidden).
+    ``camera_zoom``: the lens's zoom (focal length = the scene's focal length at zoom 1 times it);
+    ``camera_position_m``: the camera's position in the world frame (x right, y down, z forward);
+    ``target_direction``: the unit world direction to the drone (it is far away: a direction).
     """
 
     image: Optional[np.ndarray]  # None from Scene.truth()
@@ -49,6 +52,9 @@ class SceneFrame:
     camera_rpy_rad: Tuple[float, float, float]
     target_span_px: Optional[float] = None
     target_visible: float = 0.0
+    camera_zoom: float = 1.0
+    camera_position_m: Optional[Tuple[float, float, float]] = None
+    target_direction: Optional[Tuple[float, float, float]] = None
 
 
 class _TargetPath:
@@ -229,6 +235,8 @@ class Scene:
             yield SceneFrame(
                 image=image, index=index, target_xyxy=box, homography=step_h,
                 camera_rpy_rad=(pose.roll_rad, pose.pitch_rad, pose.yaw_rad), target_span_px=span, target_visible=seen,
+                camera_zoom=float(pose.zoom), camera_position_m=tuple(float(c) for c in pose.position_m),
+                target_direction=tuple(float(c) for c in dirs[0]),
             )
             index += 1
 
