@@ -77,8 +77,9 @@ def test_an_operators_lock_is_not_taken_by_a_hit_elsewhere(clip, designated):
     glad.designated = designated
     taken = 0
     for k in range(i, i + 8):
-        r = glad.process(frames[k])
-        if r.target is not None and truth[k] is not None and np.hypot(*(centre(r.target.xyxy) - centre(truth[k]))) < 10:
+        glad.process(frames[k])
+        # what the lock follows (reported or not: an automatic lock waits for the verifier)
+        if glad.region.active and truth[k] is not None and np.hypot(*(np.asarray(glad.region.center) - centre(truth[k]))) < 10:
             taken += 1
     if designated:
         assert taken == 0, "the operator's lock moved to the drone"
