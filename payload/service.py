@@ -9,7 +9,8 @@ STATUS= line every summary interval. SIGHUP reloads the config: each component a
 section and returns the keys it applied, restart-only keys are refused in one line, an invalid
 file keeps the running config. SIGTERM/SIGINT finish the current frame, flush the records and
 close the link. Records (detections.csv, decisions.csv) that cannot be written are reported
-once and detection goes on.
+once and detection goes on. The live video and the recording (payload.video) get each processed
+frame through a slot of one that never makes the loop wait.
 """
 
 import logging
@@ -38,6 +39,7 @@ from payload.geometry import BearingModel
 from payload.records import DECISION_FIELDS, HEADER, CsvLog, decision_row, detection_rows
 from payload.sdnotify import Notifier
 from payload.types import Bearing, Frame
+from payload.video import StreamDescription
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +76,7 @@ class Service:
         self.glad: Optional[Glad] = None
         self._detections_csv: Optional[CsvLog] = None
         self._decisions_csv: Optional[CsvLog] = None
+        self.video = None  # payload.video.output.VideoOutput while video or recording runs
         self._last_watchdog_s = 0.0
         self._last_result: Optional[GladResult] = None
         self._faults_reported = 0
@@ -112,6 +115,10 @@ class Service:
                                           out.max_file_bytes, out.keep_files)
             self._decisions_csv = CsvLog(os.path.join(out.directory, "decisions.csv"), DECISION_FIELDS,
                                          out.max_file_bytes, out.keep_files)
+        if cfg.video.enabled or cfg.recording.enabled:
+            from payload.video.output import VideoOutput
+
+            self.video = VideoOutput.open(cfg)
         self.notifier.status("opening %s" % cfg.capture.source)
         self.source = open_source(cfg.capture)
         self.source.open()
@@ -120,7 +127,7 @@ class Service:
 
     def _shutdown(self) -> None:
         self.notifier.stopping()
-        for closer in (self.source, self.link, self._detections_csv, self._decisions_csv):
+        for closer in (self.source, self.video, self.link, self._detections_csv, self._decisions_csv):
             if closer is None:
                 continue
             try:
@@ -161,6 +168,8 @@ class Service:
         if self.link is not None and not self.link.detection_enabled:
             self.stats.skipped += 1
             self.stats.interval_frames += 1
+            if self.video is not None:
+                self.video.submit(frame, None, "detection off")  # the operator still sees the camera
             self._watchdog()  # paused by command, and alive
             return
         try:
@@ -173,6 +182,8 @@ class Service:
                 self._detections_csv.write_rows(detection_rows(frame.index, result.detections))
             if self._decisions_csv is not None:
                 self._decisions_csv.write_rows([decision_row(frame, result, bearing, sent)])
+            if self.video is not None:
+                self.video.submit(frame, result, self._state(result))
             if self.on_result is not None:
                 self.on_result(frame, result)
         except Exception as exc:  # one bad frame must not take the payload down; count and go on
@@ -216,8 +227,12 @@ class Service:
 
     # --- reporting ------------------------------------------------------------------------
 
-    def _state(self) -> str:
-        r = self._last_result
+    def stream_description(self) -> Optional[StreamDescription]:
+        """The live video as served (for VIDEO_STREAM_INFORMATION), or None when there is none."""
+        return self.video.description if self.video is not None else None
+
+    def _state(self, result: Optional[GladResult] = None) -> str:
+        r = result if result is not None else self._last_result
         if r is None or r.target is None:
             return "searching"
         return "tracking" if r.target.measured else "coasting"
@@ -249,6 +264,8 @@ class Service:
                  ("attitude_not_finite", self.bearings.attitude_not_finite),
                  ("bearing_not_finite", self.bearings.bearing_not_finite),
                  ("rows_lost", sum(c.lost for c in (self._detections_csv, self._decisions_csv) if c is not None))]
+        if self.video is not None:
+            extra += self.video.summary_fields()
         line += "".join(" %s=%d" % (name, n) for name, n in extra if n)
         log.info("%s%s", "final " if final else "", line)
         self.notifier.status(line)
@@ -304,6 +321,8 @@ class Service:
             applied += self.publisher.apply(new.mavlink.outputs)
         if self.link is not None:
             applied += self.link.apply(new.mavlink)
+        if self.video is not None:
+            applied += self.video.apply(new)
         return applied
 
     def _apply_logging(self, cfg: LoggingConfig) -> List[str]:

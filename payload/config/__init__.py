@@ -36,6 +36,7 @@ from payload.config.schema import (
     MotionConfig,
     MountConfig,
     OutputsConfig,
+    RecordingConfig,
     Retry,
     ScanConfig,
     SearchRegionConfig,
@@ -44,6 +45,7 @@ from payload.config.schema import (
     StageConfig,
     SwitcherConfig,
     SyntheticSceneConfig,
+    VideoConfig,
     check_connection,
     connection_problem,
 )
@@ -51,8 +53,8 @@ from payload.config.schema import (
 __all__ = [
     "MAX_BYTES", "MAX_NODES", "RESTART_KEYS", "AppearanceConfig", "CameraConfig", "CaptureConfig", "ClassifierConfig",
     "Config", "DetectorConfig", "GlobalStageConfig", "LoggingConfig", "MavlinkConfig", "MavlinkOutputsConfig",
-    "MotionConfig", "MountConfig", "OutputsConfig", "Retry", "ScanConfig", "SearchRegionConfig", "Section",
-    "SigningConfig", "StageConfig", "SwitcherConfig", "SyntheticSceneConfig", "changed_keys", "check_connection",
+    "MotionConfig", "MountConfig", "OutputsConfig", "RecordingConfig", "Retry", "ScanConfig", "SearchRegionConfig", "Section",
+    "SigningConfig", "StageConfig", "SwitcherConfig", "SyntheticSceneConfig", "VideoConfig", "changed_keys", "check_connection",
     "config_with", "connection_problem", "file_problems", "flat_config", "is_restart_key", "load_config",
     "load_run_config", "load_signing_key", "parse_config", "path_problem", "read_yaml", "restart_required",
     "section_changes", "writable_dir_problem",
