@@ -441,3 +441,40 @@ def test_disk_full_stops_recording_with_one_line_and_detection_goes_on(gst, tmp_
     with open(str(out_dir / "decisions.csv")) as fh:
         assert sum(1 for _ in fh) - 1 == 120  # every frame went all the way through
     assert "final fps=" in log and " frames=120 " in log
+
+
+def _run_without(blocked, argv, timeout_s=300):
+    """``glad-payload ARGV`` in a fresh interpreter where the modules ``blocked`` cannot be imported,
+    as on a machine without them (an import of a module set to None in sys.modules raises ImportError)."""
+    code = ("import sys\nfor name in %r:\n    sys.modules[name] = None\n"
+            "from payload.cli import main\nsys.exit(main(%r))" % (list(blocked), list(argv)))
+    return subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=timeout_s,
+                          env=dict(os.environ, PYTHONUNBUFFERED="1"))
+
+
+@pytest.mark.slow
+def test_without_pygobject_video_is_one_line_and_detection_goes_on(tmp_path):
+    """Runs wherever the tests run (the 3.8 venv has no PyGObject; elsewhere it is blocked here)."""
+    cfg = service_cfg(tmp_path, outputs={"directory": str(tmp_path / "out")}, video={"enabled": True},
+                      recording={"enabled": True, "dir": str(tmp_path / "rec")})
+    cfg["capture"]["synthetic"]["frames"] = 20
+    path = tmp_path / "payload.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    proc = _run_without(["gi"], ["run", "--config", str(path)])
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = [line for line in proc.stderr.splitlines() if " WARNING " in line or " ERROR " in line]
+    assert len(lines) == 1, lines
+    assert lines[0].endswith("video and recording off: GStreamer is not usable from Python (import of gi halted; "
+                             "None in sys.modules): install the gstreamer extra (PyGObject) and gir1.2-gstreamer-1.0; "
+                             "detection goes on"), lines[0]
+    assert " frames=20 " in proc.stderr.splitlines()[-1]
+    assert not os.path.exists(str(tmp_path / "rec"))
+
+
+@pytest.mark.slow
+def test_demo_without_the_rtsp_server_streams_rtp_udp_and_says_where(gst, tmp_path):
+    proc = _run_without(["gi.repository.GstRtspServer"], ["demo", "--out", str(tmp_path), "--frames", "15"])
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "live video         udp://127.0.0.1:5600  (1280x720 H.264 openh264enc)" in proc.stdout, proc.stdout
+    assert "no RTSP (the RTSP server is not usable from Python" in proc.stderr
+    assert "frames processed   15" in proc.stdout

@@ -5,7 +5,7 @@ loop without ever making it wait.
 is replaced and counted); a thread of its own takes the newest at most ``video.fps`` times a
 second, draws it (payload.video.render) and hands it to the stream and the recorder, each of which
 drops a frame its encoder is not ready for (counted too). Nothing is drawn or encoded for the
-stream while no RTSP client watches.
+stream while no RTSP client watches. All video threads run nicer than detection (gst.VIDEO_NICE).
 """
 
 import logging
@@ -18,7 +18,7 @@ from payload.config import Config, section_changes
 from payload.detect.pipeline import GladResult
 from payload.types import Frame
 from payload.video.description import StreamDescription
-from payload.video.gst import VideoUnavailable, choose_encoder, import_gst
+from payload.video.gst import VideoUnavailable, choose_encoder, import_gst, lower_this_thread
 from payload.video.handoff import NewestSlot
 from payload.video.recorder import Recorder
 from payload.video.render import render, to_i420
@@ -158,6 +158,7 @@ class VideoOutput:
     # --- the video thread ------------------------------------------------------------------
 
     def _run(self) -> None:
+        lower_this_thread()
         period = 1.0 / self.cfg.video.fps
         due = 0.0
         while not self._slot.closed:

@@ -24,6 +24,7 @@ from payload.video.gst import (
     encoder_chain,
     import_gst,
     import_rtsp_server,
+    lower_streaming_threads,
 )
 
 log = logging.getLogger(__name__)
@@ -88,6 +89,8 @@ class RtspStream:
 
     def _on_media_configure(self, _factory, media) -> None:
         element = media.get_element()
+        pipeline = element.get_parent()
+        lower_streaming_threads((pipeline if pipeline is not None else element).get_bus())
         feed = AppsrcFeed(element.get_by_name_recurse_up("src"), _frame_bytes(self.size_wh))
         media.connect("unprepared", self._on_unprepared, feed)
         with self._lock:
