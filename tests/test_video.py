@@ -419,8 +419,9 @@ def _limit_file_size(limit):
 
 @pytest.mark.slow
 def test_disk_full_stops_recording_with_one_line_and_detection_goes_on(gst, tmp_path):
-    """The kernel refuses to grow any file past 200 kB (RLIMIT_FSIZE, as a full disk refuses a
-    write): the payload process logs one line, stops recording, and processes every frame."""
+    """The kernel refuses to grow any file past 60 kB (RLIMIT_FSIZE, as a full disk refuses a
+    write; the CSVs of 120 frames stay under it): the payload process logs one line, stops
+    recording, and processes every frame."""
     out_dir = tmp_path / "out"
     cfg = service_cfg(tmp_path, outputs={"directory": str(out_dir)},
                       video={"width": 640, "height": 360, "bitrate_kbps": 4000},
@@ -433,7 +434,7 @@ def test_disk_full_stops_recording_with_one_line_and_detection_goes_on(gst, tmp_
     with open(str(log_path), "w") as log_file:
         proc = subprocess.run([sys.executable, "-m", "payload", "run", "--config", str(path)], cwd=REPO,
                               stdout=subprocess.DEVNULL, stderr=log_file, timeout=300,
-                              preexec_fn=_limit_file_size(200000), env=dict(os.environ, PYTHONUNBUFFERED="1"))
+                              preexec_fn=_limit_file_size(60000), env=dict(os.environ, PYTHONUNBUFFERED="1"))
     log = log_path.read_text()
     assert proc.returncode == 0, log[-3000:]
     stopped = [line for line in log.splitlines() if "recording stopped" in line]
@@ -441,6 +442,8 @@ def test_disk_full_stops_recording_with_one_line_and_detection_goes_on(gst, tmp_
     with open(str(out_dir / "decisions.csv")) as fh:
         assert sum(1 for _ in fh) - 1 == 120  # every frame went all the way through
     assert "final fps=" in log and " frames=120 " in log
+    segments = glob.glob(str(tmp_path / "rec" / "glad-*.mkv"))
+    assert len(segments) == 1 and os.path.getsize(segments[0]) == 60000  # cut off by the limit
 
 
 def _run_without(blocked, argv, timeout_s=300):

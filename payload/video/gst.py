@@ -17,10 +17,10 @@ import numpy as np
 ENCODERS = {
     "nvv4l2h264enc": ("nvvidconv ! video/x-raw(memory:NVMM),format=I420 ! nvv4l2h264enc name=enc bitrate={bps} "
                       "iframeinterval={gop} idrinterval={gop} insert-sps-pps=true maxperf-enable=true ! h264parse"),
-    # complexity low: the software encoder shares the CPU with detection; a key frame every second
-    # lets a ground station join within a second and recording segments split there.
-    "openh264enc": ("openh264enc name=enc bitrate={bps} rate-control=bitrate complexity=low gop-size={gop} "
-                    "usage-type=camera ! h264parse"),
+    # complexity low and one thread: the software encoder shares the CPU with detection; a key
+    # frame every second lets a ground station join within a second and recording segments split there.
+    "openh264enc": ("openh264enc name=enc bitrate={bps} rate-control=bitrate complexity=low multi-thread=1 "
+                    "gop-size={gop} usage-type=camera ! h264parse"),
 }
 #: Elements an encoder's chain needs beside itself.
 _NEEDS = {"nvv4l2h264enc": ("nvvidconv", "h264parse"), "openh264enc": ("h264parse",)}
@@ -28,9 +28,9 @@ _NEEDS = {"nvv4l2h264enc": ("nvvidconv", "h264parse"), "openh264enc": ("h264pars
 AUTO_ORDER = ("nvv4l2h264enc", "openh264enc")
 
 #: The video's threads (ours and GStreamer's streaming threads, and the encoder's own threads they
-#: start) run this much nicer than the detection loop: where the CPU is short (a software encoder
-#: on a few cores) the video gets what detection leaves and drops frames, instead of slowing it.
-VIDEO_NICE = 10
+#: start) run at the lowest priority (nice 19): where the CPU is short (a software encoder on a
+#: few cores) the video gets what detection leaves and drops frames, instead of slowing it.
+VIDEO_NICE = 19
 
 _init_lock = threading.Lock()
 _initialised = False
@@ -111,13 +111,10 @@ def appsrc_text(size_wh: Tuple[int, int], fps: float) -> str:
 
 
 def lower_this_thread() -> None:
-    """Make the calling thread VIDEO_NICE nicer than the process (Linux nice is per thread, and
-    threads started from this one inherit it). Not permitted or not Linux: left as it is."""
+    """Give the calling thread VIDEO_NICE (Linux nice is per thread, and threads started from this
+    one inherit it). Not permitted (a seccomp filter) or not Linux: left as it is."""
     try:
-        tid = threading.get_native_id()
-        base = os.getpriority(os.PRIO_PROCESS, os.getpid())
-        if os.getpriority(os.PRIO_PROCESS, tid) < base + VIDEO_NICE:
-            os.setpriority(os.PRIO_PROCESS, tid, min(19, base + VIDEO_NICE))
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), VIDEO_NICE)
     except (AttributeError, OSError):
         pass
 

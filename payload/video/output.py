@@ -5,7 +5,7 @@ loop without ever making it wait.
 is replaced and counted); a thread of its own takes the newest at most ``video.fps`` times a
 second, draws it (payload.video.render) and hands it to the stream and the recorder, each of which
 drops a frame its encoder is not ready for (counted too). Nothing is drawn or encoded for the
-stream while no RTSP client watches. All video threads run nicer than detection (gst.VIDEO_NICE).
+stream while no RTSP client watches. All video threads run at the lowest priority (gst.VIDEO_NICE).
 """
 
 import logging

@@ -2,7 +2,8 @@
 boxes (module and score), its mode (global/local) and the lock state drawn on it.
 
 The frame is scaled first and drawn on afterwards: drawing at 1080p and then scaling costs a
-full-size copy and blurs the text. It is stretched, not letterboxed, to the configured size, so
+full-size copy and blurs the text. Bilinear, not area averaging: several times cheaper at 1080p,
+and the boxes that show a small target are drawn after scaling anyway. It is stretched, not letterboxed, to the configured size, so
 normalised image coordinates (what CAMERA_TRACK_POINT carries) mean the same in the stream and
 in the camera frame.
 """
@@ -28,7 +29,7 @@ def render(image: np.ndarray, result: Optional[GladResult], state: str, size_wh:
     """The BGR picture of ``size_wh`` for this frame; annotated when ``annotate`` and a result is given."""
     h, w = image.shape[:2]
     out_w, out_h = size_wh
-    scaled = image if (w, h) == (out_w, out_h) else cv2.resize(image, (out_w, out_h), interpolation=cv2.INTER_AREA)
+    scaled = image if (w, h) == (out_w, out_h) else cv2.resize(image, (out_w, out_h), interpolation=cv2.INTER_LINEAR)
     if not annotate:
         return scaled
     if result is None:  # no detection ran on this frame (disabled by command): say so
