@@ -481,3 +481,36 @@ def test_demo_without_the_rtsp_server_streams_rtp_udp_and_says_where(gst, tmp_pa
     assert "live video         udp://127.0.0.1:5600  (1280x720 H.264 openh264enc)" in proc.stdout, proc.stdout
     assert "no RTSP (the RTSP server is not usable from Python" in proc.stderr
     assert "frames processed   15" in proc.stdout
+
+
+def test_sighup_reload_sets_the_bitrate_live_and_refuses_the_size(gst, tmp_path, caplog):
+    """Through the service's reload: video.bitrate_kbps reaches the running encoder, video.width
+    (restart-only) is named in one line and keeps its running value."""
+    from payload.config import load_run_config
+    from payload.service import Service
+
+    data = service_cfg(tmp_path, video={"enabled": True, "transport": "udp", "udp_port": free_udp_port(),
+                                        "width": 320, "height": 180})
+    path = tmp_path / "payload.yaml"
+    path.write_text(yaml.safe_dump(data))
+    service = Service(load_run_config(str(path)), config_path=str(path))
+    caplog.set_level(logging.INFO)
+    runner = threading.Thread(target=service.run, daemon=True)
+    runner.start()
+    try:
+        deadline = time.monotonic() + 60
+        while service.stats.frames < 3 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        data["video"].update(bitrate_kbps=700, width=640)
+        path.write_text(yaml.safe_dump(data))
+        service._reload.set()  # what SIGHUP does
+        while not any("reload: applied" in r.getMessage() for r in caplog.records) and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        service.stop()
+        runner.join(timeout=30)
+    messages = [r.getMessage() for r in caplog.records]
+    assert any(m.startswith("reload: applied") and m.endswith("changed=video.bitrate_kbps") for m in messages), messages
+    assert "reload: these changes need a restart and are not applied yet: video.width" in messages
+    assert service.video.stream.pipeline.element("enc").get_property("bitrate") == 700000
+    assert service.cfg.video.bitrate_kbps == 700 and service.cfg.video.width == 320
