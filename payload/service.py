@@ -323,6 +323,10 @@ class Service:
             applied += self.link.apply(new.mavlink)
         if self.video is not None:
             applied += self.video.apply(new)
+        else:  # no video runs (off, or GStreamer missing): its live keys are only kept in the config
+            from payload.video.output import live_changes
+
+            applied += live_changes(self.cfg, new)
         return applied
 
     def _apply_logging(self, cfg: LoggingConfig) -> List[str]:

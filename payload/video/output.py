@@ -30,6 +30,13 @@ log = logging.getLogger(__name__)
 LIVE_KEYS = ("video.annotate", "video.bitrate_kbps", "recording.annotated", "recording.quota_mb")
 
 
+def live_changes(old: Config, new: Config) -> List[str]:
+    """The LIVE_KEYS that differ between two configs."""
+    changed = section_changes(old.video, new.video, "video") + section_changes(old.recording, new.recording,
+                                                                               "recording")
+    return [k for k in changed if k in LIVE_KEYS]
+
+
 @dataclass
 class VideoStats:
     submitted: int  # frames the detection loop handed over
@@ -131,9 +138,7 @@ class VideoOutput:
 
     def apply(self, new: Config) -> List[str]:
         """The live keys of a reloaded config (LIVE_KEYS); the others wait for a restart."""
-        changed = section_changes(self.cfg.video, new.video, "video")
-        changed += section_changes(self.cfg.recording, new.recording, "recording")
-        applied = [k for k in changed if k in LIVE_KEYS]
+        applied = live_changes(self.cfg, new)
         if "video.bitrate_kbps" in applied and self.stream is not None:
             self.stream.set_bitrate(new.video.bitrate_kbps)
         if "recording.quota_mb" in applied and self.recorder is not None:
