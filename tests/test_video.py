@@ -174,6 +174,26 @@ def test_rtsp_stream_is_decoded_by_a_real_rtspsrc_client(gst):
         out.stop()
 
 
+def test_a_ground_station_can_leave_and_come_back(gst):
+    """The media ends with its last client (nothing encoded meanwhile) and starts again for the next."""
+    from payload.video.output import VideoOutput
+
+    out = VideoOutput.open(video_cfg())
+    try:
+        for visit in range(2):
+            receiver = Receiver(gst, "rtspsrc location=%s latency=0" % out.description.uri)
+            feed_until(out, receiver, 5, lambda i: halves(320, 240))
+            assert len(receiver.frames) >= 5, visit
+            check_halves(receiver.frames[-1])
+            receiver.close()  # TEARDOWN
+            deadline = time.monotonic() + 10
+            while out.stream.feed is not None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert out.stream.feed is None and out.stats().clients == 0
+    finally:
+        out.stop()
+
+
 def test_the_stream_shows_the_target_box_where_glad_put_it(gst):
     """Annotated: the target's box, drawn at the scaled position, reaches the client."""
     from payload.video.output import VideoOutput
