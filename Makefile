@@ -42,7 +42,7 @@ demo: $(VENV)/.runtime
 
 test: system-deps $(VENV)/.dev
 	@# The GStreamer tests must run, not skip, wherever `make test` is the test command.
-	$(PY) -c "import gi; gi.require_version('Gst', '1.0'); from gi.repository import Gst; Gst.init(None)"
+	$(PY) -c "import gi; gi.require_version('Gst', '1.0'); gi.require_version('GstRtspServer', '1.0'); from gi.repository import Gst, GstRtspServer; Gst.init(None)"
 	$(PY) -m pytest -q -ra
 
 test38: $(VENV38)/.runtime

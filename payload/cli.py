@@ -182,6 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runner", choices=("glad", "global", "tiled"), default="glad",
                    help="GLAD, or a baseline: the global detector alone, or tiled full-resolution inference")
     p.add_argument("--json", default=None, help="also write the report as JSON here")
+    p.add_argument("--no-stream", action="store_true",
+                   help="skip the payload-loop runs with the live video on and off (RTSP, a client connected)")
     p.add_argument("--ablation", action="store_true", help="score the Table V configurations and the baselines")
     p.add_argument("--rows", nargs="*", default=None, help="ablation: only these rows, by name")
     p.add_argument("--split", default=None, help="ablation: clips of a split of splits.json, e.g. val")

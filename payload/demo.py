@@ -7,7 +7,10 @@ plays the ground station of the MAVLink camera protocol: it asks for CAMERA_INFO
 VIDEO_STREAM_INFORMATION, designates the synthetic drone with MAV_CMD_CAMERA_TRACK_POINT a third
 of the way in (where the scene has it) and stops tracking 10 frames before the end; the summary
 shows that exchange and the designated lock. The output folder
-gets the annotated MP4, detections.csv, decisions.csv and the autopilot's record.
+gets the annotated MP4, detections.csv, decisions.csv and the autopilot's record. The annotated
+live video is served over RTSP (video.rtsp_port, 8554 by default; RTP/UDP when the RTSP server
+is missing or the port taken) and its URI printed at the first frame, to open in VLC or a
+ground station while the demo runs; without GStreamer the demo runs without it.
 """
 
 import json
@@ -182,6 +185,7 @@ def demo_config(base: Config, out_dir: str, frames: int, port: int) -> Config:
     return config_with(base, **{
         "capture.source": "synthetic", "capture.pace": False, "capture.synthetic.frames": frames,
         "mavlink.enabled": True, "mavlink.connection": "udpout:127.0.0.1:%d" % port, "outputs.directory": out_dir,
+        "video.enabled": True,
     })
 
 
@@ -200,6 +204,8 @@ class _DemoView:
 
     def __call__(self, frame: Frame, result: GladResult) -> None:
         service = self.service_ref["service"]
+        if self.frames == 0:
+            print("live video         %s" % video_line(service), flush=True)
         truth = getattr(service.source, "last_truth", None)
         self._score(result, None if truth is None else truth.target_xyxy)
         if self.ground_station is not None:
@@ -232,6 +238,13 @@ class _DemoView:
         self.video.close()
         if self.tty:
             sys.stderr.write("\n")
+
+
+def video_line(service: Service) -> str:
+    d = service.stream_description()
+    if d is None:
+        return "off (GStreamer, the RTSP server or an H.264 encoder missing: see the log)"
+    return "%s  (%dx%d H.264 %s)" % (d.uri, d.width, d.height, d.encoder)
 
 
 def main_demo(args) -> int:
@@ -272,6 +285,7 @@ def main_demo(args) -> int:
           % (service.stats.frames, elapsed, service.stats.frames / max(elapsed, 1e-6)))
     print("  frames with target %d  (vs. scene truth: TP %d, FP %d, FN %d; P %.2f R %.2f F %.2f)"
           % (service.stats.hits, view.tp, view.fp, view.fn, precision, recall, f1))
+    print("  live video         %s" % video_line(service))
     print("  autopilot received %s" % (", ".join("%s %d" % kv for kv in sorted(received.items())) or "nothing"))
     exchange = camera_exchange(record)
     for i, line in enumerate(exchange):

@@ -11,7 +11,8 @@ file keeps the running config. SIGTERM/SIGINT finish the current frame, flush th
 close the link. The MAVLink camera protocol (payload.mavlink.camera) hands an operator's track
 point to the loop, which designates it to GLAD at the start of the next frame and reports the
 outcome after each frame. Records (detections.csv, decisions.csv) that cannot be written are reported
-once and detection goes on.
+once and detection goes on. The live video and the recording (payload.video) get each processed
+frame through a slot of one that never makes the loop wait.
 """
 
 import logging
@@ -40,6 +41,7 @@ from payload.geometry import Attitude, BearingModel, GeoModel, TargetGeo
 from payload.records import DECISION_FIELDS, HEADER, CsvLog, decision_row, detection_rows
 from payload.sdnotify import Notifier
 from payload.types import Bearing, Frame
+from payload.video import StreamDescription
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +74,7 @@ class Service:
         self._ready_sent = False
         self.bearings = BearingModel(cfg.camera)
         self.geo = GeoModel(cfg.target, self.bearings)
-        self.stream = stream  # payload.mavlink.camera.StreamDescription of the video output, or None
+        self.stream = stream  # a payload.video.StreamDescription to announce instead of the video output's
         self.link = None
         self.publisher = None
         self.camera = None  # payload.mavlink.camera.CameraProtocol
@@ -80,6 +82,7 @@ class Service:
         self.glad: Optional[Glad] = None
         self._detections_csv: Optional[CsvLog] = None
         self._decisions_csv: Optional[CsvLog] = None
+        self.video = None  # payload.video.output.VideoOutput while video or recording runs
         self._last_watchdog_s = 0.0
         self._last_result: Optional[GladResult] = None
         self._faults_reported = 0
@@ -122,6 +125,12 @@ class Service:
                                           out.max_file_bytes, out.keep_files)
             self._decisions_csv = CsvLog(os.path.join(out.directory, "decisions.csv"), DECISION_FIELDS,
                                          out.max_file_bytes, out.keep_files)
+        if cfg.video.enabled or cfg.recording.enabled:
+            from payload.video.output import VideoOutput
+
+            self.video = VideoOutput.open(cfg)
+        if self.camera is not None and self.camera.stream is None:
+            self.camera.stream = self.stream_description()  # VIDEO_STREAM_INFORMATION names what is served
         self.notifier.status("opening %s" % cfg.capture.source)
         self.source = open_source(cfg.capture)
         self.source.open()
@@ -137,7 +146,7 @@ class Service:
         self.notifier.stopping()
         if self.camera is not None:
             self.camera.cancel("shutting down")
-        for closer in (self.source, self.link, self._detections_csv, self._decisions_csv):
+        for closer in (self.source, self.video, self.link, self._detections_csv, self._decisions_csv):
             if closer is None:
                 continue
             try:
@@ -180,6 +189,8 @@ class Service:
                 self.camera.cancel("detection disabled by command")
             self.stats.skipped += 1
             self.stats.interval_frames += 1
+            if self.video is not None:
+                self.video.submit(frame, None, "detection off")  # the operator still sees the camera
             self._watchdog()  # paused by command, and alive
             return
         try:
@@ -199,6 +210,8 @@ class Service:
                 self._detections_csv.write_rows(detection_rows(frame.index, result.detections))
             if self._decisions_csv is not None:
                 self._decisions_csv.write_rows([decision_row(frame, result, bearing, sent)])
+            if self.video is not None:
+                self.video.submit(frame, result, self._state(result))
             if self.on_result is not None:
                 self.on_result(frame, result)
         except Exception as exc:  # one bad frame must not take the payload down; count and go on
@@ -263,8 +276,13 @@ class Service:
 
     # --- reporting ------------------------------------------------------------------------
 
-    def _state(self) -> str:
-        state = "searching" if self._last_result is None else self._last_result.state
+    def stream_description(self) -> Optional[StreamDescription]:
+        """The live video as served (for VIDEO_STREAM_INFORMATION), or None when there is none."""
+        return self.video.description if self.video is not None else None
+
+    def _state(self, result: Optional[GladResult] = None) -> str:
+        r = result if result is not None else self._last_result
+        state = "searching" if r is None else r.state
         return state + ",designated" if self.glad is not None and self.glad.designated else state
 
     def _maybe_summary(self) -> None:
@@ -294,6 +312,8 @@ class Service:
                  ("attitude_not_finite", self.bearings.attitude_not_finite),
                  ("bearing_not_finite", self.bearings.bearing_not_finite),
                  ("rows_lost", sum(c.lost for c in (self._detections_csv, self._decisions_csv) if c is not None))]
+        if self.video is not None:
+            extra += self.video.summary_fields()
         line += "".join(" %s=%d" % (name, n) for name, n in extra if n)
         log.info("%s%s", "final " if final else "", line)
         self.notifier.status(line)
@@ -353,6 +373,12 @@ class Service:
             self.link.position_rate_hz = self._position_rate_hz(new)
         if self.camera is not None:
             applied += self.camera.apply(new)
+        if self.video is not None:
+            applied += self.video.apply(new)
+        else:  # no video runs (off, or GStreamer missing): its live keys are only kept in the config
+            from payload.video.output import live_changes
+
+            applied += live_changes(self.cfg, new)
         return applied
 
     def _apply_logging(self, cfg: LoggingConfig) -> List[str]:

@@ -52,6 +52,9 @@ def running_values(svc):
         for key, value in flat_config(svc.link.cfg, "mavlink").items():
             if not key.startswith("mavlink.outputs."):
                 seen.setdefault(key, []).append(value)
+    video_cfg = svc.video.cfg if svc.video is not None else svc.cfg  # no video running: only the config holds them
+    add("video", video_cfg.video)
+    add("recording", video_cfg.recording)
     seen.setdefault("logging.level", []).append(logging.getLevelName(logging.getLogger().level))
     add("logging", svc.cfg.logging)  # the summary interval is read from the service's config
     return seen

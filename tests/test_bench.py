@@ -157,6 +157,23 @@ def test_bench_command_prints_and_writes_every_section(synth, tmp_path, capsys):
     assert report["providers"] and all(p == "CPUExecutionProvider" for p in report["providers"])
     # everything the publisher handed to the link arrived at the bench's own UDP socket
     assert report["messages_received"] == report["messages_sent"] > 0
+    # the second payload-loop pass with the live video on: measured wherever the video can run
+    assert "fps end-to-end, live video off / on" in text
+    try:
+        from payload.video.gst import VideoUnavailable, choose_encoder, import_rtsp_server
+
+        import_rtsp_server()
+        choose_encoder("auto")
+    except VideoUnavailable as exc:
+        assert report["fps_stream_on"] is None and report["fps_stream_off"] is None, exc
+        assert report["stream"].startswith("not measured"), exc
+    else:
+        assert report["fps_stream_on"] > 0 and report["stream"].startswith("rtsp://127.0.0.1:")
+        assert report["fps_stream_off"] >= report["fps_end_to_end"]  # the best of two off passes
+        assert report["stream"].endswith("1 client(s)")  # the bench's rtspsrc client was connected
+        assert report["stream_frames"] >= 1
+        # two stream-on passes over the clip: each frame encoded or dropped (one may wait in the slot)
+        assert 2 * CLIP_FRAMES - 1 <= report["stream_frames"] + report["stream_dropped"] <= 2 * CLIP_FRAMES
 
 
 def test_bench_ablation_command_prints_each_row(synth, capsys, tmp_path):

@@ -2,10 +2,10 @@
 synthetic scene), MAVProxy in the middle routing it to the fake autopilot and to a pymavlink
 ground station, which asks for CAMERA_INFORMATION, designates the synthetic drone with
 MAV_CMD_CAMERA_TRACK_POINT (tracking statuses on it within 10 frames), stops tracking (back to
-search) and designates an empty spot (FAILED, status ERROR).
-
-(VIDEO_STREAM_INFORMATION with a real RTSP URI needs the video output, wired in at merge; without
-it the payload answers DENIED and leaves HAS_VIDEO_STREAM out, which is checked here.)
+search) and designates an empty spot (FAILED, status ERROR). With the video on, it also asks for
+VIDEO_STREAM_INFORMATION, opens the RTSP URI named there with a real rtspsrc client and decodes
+frames; with GStreamer's RTSP server missing (the Python 3.8 venv) the payload answers DENIED and
+leaves HAS_VIDEO_STREAM out, which is checked instead.
 """
 
 import math
@@ -18,6 +18,7 @@ import time
 import pytest
 import yaml
 from test_service import decisions_count, read_decisions, start_autopilot, start_payload, stop, wait_for
+from test_video import Receiver
 
 from payload.demo import free_udp_port
 from payload.synth.scene import Scene
@@ -76,7 +77,20 @@ class GroundStation:
         self.conn.close()
 
 
-def write_config(tmp_path, port, out_dir):
+def rtsp_gst():
+    """GStreamer with the RTSP server and a client's elements, or None (then the payload serves no video)."""
+    try:
+        from payload.video.gst import VideoUnavailable, has_elements, import_gst, import_rtsp_server
+
+        Gst, _ = import_gst()
+        import_rtsp_server()
+    except (ImportError, VideoUnavailable):
+        return None
+    ok = all(has_elements(e) for e in ("openh264enc", "rtspsrc", "rtph264depay", "avdec_h264"))
+    return Gst if ok else None
+
+
+def write_config(tmp_path, port, out_dir, video=False):
     cfg = {
         "capture": {"source": "synthetic", "pace": True,
                     "synthetic": {"seed": SEED, "width": W, "height": H, "fps": 15.0, "frames": 0,
@@ -87,6 +101,8 @@ def write_config(tmp_path, port, out_dir):
                     "camera": {"designate_frames": 10}},
         "outputs": {"directory": str(out_dir)},
         "logging": {"summary_interval_s": 1.0},
+        "video": {"enabled": video, "rtsp_port": 0, "advertise_host": "127.0.0.1", "width": 320, "height": 192,
+                  "fps": 15.0},
     }
     path = tmp_path / "payload.yaml"
     path.write_text(yaml.safe_dump(cfg))
@@ -116,7 +132,8 @@ def test_camera_protocol_through_mavproxy(tmp_path, mavproxy_script):
     )
     autopilot = start_autopilot(ap_port, tmp_path / "record.jsonl")
     gcs = GroundStation(gcs_port)
-    payload = start_payload(write_config(tmp_path, payload_port, out_dir), log_path=log_path)
+    Gst = rtsp_gst()
+    payload = start_payload(write_config(tmp_path, payload_port, out_dir, video=Gst is not None), log_path=log_path)
     try:
         gcs.wait(lambda m: m.get_type() == "HEARTBEAT", 60, "the payload's heartbeat through MAVProxy")
         # CAMERA_INFORMATION on request
@@ -124,10 +141,23 @@ def test_camera_protocol_through_mavproxy(tmp_path, mavproxy_script):
         info = gcs.wait(lambda m: m.get_type() == "CAMERA_INFORMATION", 10, "CAMERA_INFORMATION")[0][1]
         assert gcs.acks(512, t) == [ACCEPTED]
         assert (info.resolution_h, info.resolution_v) == (W, H)
-        assert info.flags & 512 and info.flags & 1024 and not info.flags & 256  # point, rectangle; no stream yet
+        assert info.flags & 512 and info.flags & 1024  # tracking point, rectangle
         assert bytes(info.vendor_name).rstrip(b"\0") == b"glad-payload"
-        t = gcs.command(512, 269)  # VIDEO_STREAM_INFORMATION: no video output in this branch
-        gcs.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == 512 and m.result == DENIED, 10, "DENIED")
+        t = gcs.command(512, 269)  # MAV_CMD_REQUEST_MESSAGE(VIDEO_STREAM_INFORMATION)
+        if Gst is None:
+            assert not info.flags & 256  # no HAS_VIDEO_STREAM without a stream
+            gcs.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == 512 and m.result == DENIED, 10, "DENIED")
+        else:
+            assert info.flags & 256  # HAS_VIDEO_STREAM
+            stream = gcs.wait(lambda m: m.get_type() == "VIDEO_STREAM_INFORMATION", 10, "VIDEO_STREAM_INFORMATION")[0][1]
+            uri = bytes(stream.uri).rstrip(b"\0").decode() if isinstance(stream.uri, (bytes, bytearray)) else stream.uri
+            assert uri.startswith("rtsp://127.0.0.1:") and (stream.resolution_h, stream.resolution_v) == (320, 192)
+            receiver = Receiver(Gst, "rtspsrc location=%s latency=0" % uri)
+            try:
+                wait_for(lambda: len(receiver.frames) >= 2, 60, "2 decoded frames from %s" % uri)
+            finally:
+                receiver.close()
+            assert receiver.frames[0].shape == (192, 320, 3)
 
         # designate the drone where the scene has it a few frames ahead of the last decision
         wait_for(lambda: decisions_count(out_dir) >= 30, 120, "30 processed frames")

@@ -24,10 +24,11 @@ from payload.geometry import (
     ned_between,
     range_from_size,
 )
-from payload.mavlink.camera import CameraProtocol, StreamDescription
+from payload.mavlink.camera import CameraProtocol
 from payload.mavlink.link import MavlinkLink
 from payload.mavlink.outputs import TargetPublisher
 from payload.types import Target
+from payload.video import StreamDescription
 
 ACCEPTED, TEMPORARILY_REJECTED, DENIED, FAILED, IN_PROGRESS = 0, 1, 2, 4, 5
 REQUEST_MESSAGE, SET_INTERVAL = 512, 511

@@ -133,7 +133,10 @@ def reloaded(tmp_path_factory):
     Returns (new values by key, running values by key after the reload, the log)."""
     tmp = tmp_path_factory.mktemp("reload")
     port = free_udp_port()  # nobody listens: the link runs, its sends are dropped
-    start_cfg = base_config(mavlink={"enabled": True, "connection": "udpout:127.0.0.1:%d" % port})
+    # the video and the recording run where GStreamer does (their live keys reach the running VideoOutput)
+    start_cfg = base_config(mavlink={"enabled": True, "connection": "udpout:127.0.0.1:%d" % port},
+                            video={"enabled": True, "transport": "udp", "udp_port": free_udp_port()},
+                            recording={"enabled": True, "dir": str(tmp / "rec")})
     cfg_path = tmp / "payload.yaml"
     write(cfg_path, start_cfg)
     old = parse_config(start_cfg)

@@ -7,6 +7,12 @@ Two passes over the same frames:
    MavlinkLink (``udpout``) to a UDP socket on 127.0.0.1 that the bench itself opens and
    drains, counting the MAVLink messages that arrive.
 
+3. with ``stream``: the payload loop three times more, with the live video on, off, on
+   (payload.video: the RTSP server with a real rtspsrc client connected, so every frame is drawn
+   and encoded as when a ground station watches; each frame handed over after the publish as the
+   service does). The detection loop's FPS with the stream off and on are each the best of two
+   alternating passes: on a shared machine one pass's FPS moves by tens of percent with the load.
+
 Latency of a frame runs from the moment it is asked of the source (so decoding counts, as
 the camera's own delivery would) to the return of the publish call that handed its messages
 to the socket. Frames are not paced: each is read as soon as the previous one is sent.
@@ -78,6 +84,11 @@ class BenchReport:
     threads: int  # detector.threads (0 = ONNX Runtime's default)
     cpu_count: int
     load_avg: Tuple[float, float, float] = field(default=(0.0, 0.0, 0.0))
+    fps_stream_off: float = float("nan")  # pass 2 and the second stream-off pass: the best end-to-end FPS
+    fps_stream_on: float = float("nan")  # the two stream-on passes: the best end-to-end FPS; NaN when not run
+    stream: str = ""  # what pass 3 streamed, or why it did not run
+    stream_frames: int = 0  # frames pass 3 queued for the stream's encoder
+    stream_dropped: int = 0  # frames pass 3 dropped (video thread or encoder behind)
 
     def module(self, name: str) -> Optional[ModuleTime]:
         return next((m for m in self.modules if m.name == name), None)
@@ -86,7 +97,8 @@ class BenchReport:
         out = {k: getattr(self, k) for k in (
             "source", "runner", "frames", "fps_end_to_end", "fps_without_decode", "fps_decode_only",
             "decode_ratio", "latency_p50_ms", "latency_p99_ms", "latency_max_ms", "modes", "frames_with_target",
-            "messages_sent", "messages_received", "providers", "threads", "cpu_count")}
+            "messages_sent", "messages_received", "providers", "threads", "cpu_count", "fps_stream_off", "fps_stream_on", "stream",
+            "stream_frames", "stream_dropped")}
         out["size_wh"] = list(self.size_wh)
         out["load_avg"] = list(self.load_avg)
         out["modules"] = [m.as_dict() for m in self.modules]
@@ -161,73 +173,152 @@ def _percentile(values: List[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else float("nan")
 
 
-def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frames: int = 0) -> BenchReport:
-    """Profile ``runner`` (see payload.bench.runners) on the video file or image folder ``source``."""
+@dataclass
+class _Pass:
+    per_frame: List[Dict[str, float]] = field(default_factory=list)
+    latency_ms: List[float] = field(default_factory=list)
+    modes: Counter = field(default_factory=Counter)
+    with_target: int = 0
+    sent: int = 0
+    size_wh: Tuple[int, int] = (0, 0)
+    elapsed_s: float = 0.0
+
+
+def _loop_pass(cfg: Config, capture, runner, link, publisher, frames: int, video=None) -> _Pass:
+    """One pass of the payload loop over the clip: read, detect, bearing, publish (, hand to video)."""
+    mount = mount_from_config(cfg.camera.mount)
+    camera = None
+    out = _Pass()
+    with open_source(capture) as frames_in:
+        runner.reset()
+        t_start = time.perf_counter()
+        while not frames or len(out.per_frame) < frames:
+            t_ask = time.perf_counter()
+            try:
+                frame = frames_in.read(timeout_s=1.0)
+            except EndOfStream:
+                break
+            if frame is None:
+                continue
+            t_decoded = time.perf_counter()
+            result = runner.process(frame)
+            t_detected = time.perf_counter()
+            bearing = None
+            if result.target is not None:
+                if camera is None or out.size_wh != frame.size_wh:
+                    out.size_wh = frame.size_wh
+                    camera = CameraModel.from_config(cfg.camera, out.size_wh)
+                bearing = bearing_for(result.target, camera, mount, link.attitude_at(frame.t_capture_ns))
+            t_bearing = time.perf_counter()
+            out.sent += publisher.publish(result.target, bearing, frame.size_wh)
+            t_sent = time.perf_counter()
+            if video is not None:
+                video.submit(frame, result, "searching" if result.target is None else "tracking")
+            timings = dict(result.timings_ms)
+            timings["decode"] = (t_decoded - t_ask) * 1000.0
+            if result.target is not None:
+                timings["bearing"] = (t_bearing - t_detected) * 1000.0
+            timings["mavlink"] = (t_sent - t_bearing) * 1000.0
+            out.per_frame.append(timings)
+            out.latency_ms.append((t_sent - t_ask) * 1000.0)
+            out.modes[result.mode] += 1
+            out.with_target += bool(result.target is not None and result.target.measured)
+            out.size_wh = frame.size_wh
+        out.elapsed_s = time.perf_counter() - t_start
+    return out
+
+
+def _fps(p: _Pass) -> float:
+    return len(p.per_frame) / p.elapsed_s if p.per_frame and p.elapsed_s > 0 else float("nan")
+
+
+def open_watched_stream(cfg: Config):
+    """(VideoOutput serving cfg.video over RTSP on a free port, its rtspsrc client pipeline), both
+    running and connected; or (None, why) when the video cannot run here."""
+    from payload.config import config_with
+    from payload.video.gst import VideoUnavailable, import_gst
+    from payload.video.output import VideoOutput
+
+    try:
+        Gst, _ = import_gst()
+    except VideoUnavailable as exc:
+        return None, str(exc)
+    vcfg = config_with(cfg, **{"video.enabled": True, "video.transport": "rtsp", "video.rtsp_port": 0,
+                               "video.advertise_host": "127.0.0.1", "recording.enabled": False})
+    video = VideoOutput.open(vcfg)
+    if video is None:
+        return None, "video unavailable (see the log)"
+    uri = video.description.uri
+    client = None
+    if uri.startswith("rtsp:"):  # a ground station on another machine: receive only, decode nothing here
+        client = Gst.parse_launch("rtspsrc location=%s latency=0 ! fakesink sync=false" % uri)
+        client.set_state(Gst.State.PLAYING)
+        deadline = time.monotonic() + _LINK_WAIT_S
+        while video.stream.feed is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+    return (video, client), ""
+
+
+def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frames: int = 0,
+              stream: bool = False) -> BenchReport:
+    """Profile ``runner`` (see payload.bench.runners) on the video file or image folder ``source``;
+    with ``stream``, once more with the live video on."""
     from payload.bench.runners import onnx_sessions
     from payload.mavlink.link import MavlinkLink
     from payload.mavlink.outputs import TargetPublisher
 
     fps_decode, _ = decode_only_fps(cfg, source, frames)
     capture = recording_config(cfg, source).capture
-    mount = mount_from_config(cfg.camera.mount)
-    camera = None
-    per_frame: List[Dict[str, float]] = []
-    latency_ms: List[float] = []
-    modes: Counter = Counter()
-    with_target = sent = 0
-    size_wh = (0, 0)
+    on: List[_Pass] = []
+    off_again: List[_Pass] = []
+    stream_text, stream_frames, stream_dropped = "not measured (--no-stream)", 0, 0
     with UdpSink() as sink:
         link_cfg = cfg.mavlink.model_copy(update={"enabled": True, "connection": "udpout:127.0.0.1:%d" % sink.port})
-        with MavlinkLink(link_cfg) as link, open_source(capture) as frames_in:
+        with MavlinkLink(link_cfg) as link:
             deadline = time.monotonic() + _LINK_WAIT_S
             while not link.status.connected and time.monotonic() < deadline:
                 time.sleep(0.01)
             publisher = TargetPublisher(link, cfg.mavlink.outputs)
-            runner.reset()
-            t_start = time.perf_counter()
-            while not frames or len(per_frame) < frames:
-                t_ask = time.perf_counter()
-                try:
-                    frame = frames_in.read(timeout_s=1.0)
-                except EndOfStream:
-                    break
-                if frame is None:
-                    continue
-                t_decoded = time.perf_counter()
-                result = runner.process(frame)
-                t_detected = time.perf_counter()
-                bearing = None
-                if result.target is not None:
-                    if camera is None or size_wh != frame.size_wh:
-                        size_wh = frame.size_wh
-                        camera = CameraModel.from_config(cfg.camera, size_wh)
-                    bearing = bearing_for(result.target, camera, mount, link.attitude_at(frame.t_capture_ns))
-                t_bearing = time.perf_counter()
-                sent += publisher.publish(result.target, bearing, frame.size_wh)
-                t_sent = time.perf_counter()
-                timings = dict(result.timings_ms)
-                timings["decode"] = (t_decoded - t_ask) * 1000.0
-                if result.target is not None:
-                    timings["bearing"] = (t_bearing - t_detected) * 1000.0
-                timings["mavlink"] = (t_sent - t_bearing) * 1000.0
-                per_frame.append(timings)
-                latency_ms.append((t_sent - t_ask) * 1000.0)
-                modes[result.mode] += 1
-                with_target += bool(result.target is not None and result.target.measured)
-                size_wh = frame.size_wh
-            elapsed_s = time.perf_counter() - t_start
+            off = _loop_pass(cfg, capture, runner, link, publisher, frames)
+            time.sleep(_DRAIN_S)  # the last datagrams of pass 2 are still in flight
+            received = sink.non_heartbeat
+            if stream:
+                watched, why = open_watched_stream(cfg)
+                if watched is None:
+                    stream_text = "not measured: " + why
+                else:
+                    video, client = watched
+                    try:
+                        on.append(_loop_pass(cfg, capture, runner, link, publisher, frames, video=video))
+                        off_again.append(_loop_pass(cfg, capture, runner, link, publisher, frames))
+                        on.append(_loop_pass(cfg, capture, runner, link, publisher, frames, video=video))
+                        st = video.stats()
+                        d = video.description
+                        stream_text = "%s %dx%d %g fps %d kbit/s %s, %d client(s)" % (
+                            d.uri, d.width, d.height, d.fps, d.bitrate_kbps, d.encoder, st.clients)
+                        stream_frames, stream_dropped = st.streamed, st.dropped + st.stream_dropped
+                    finally:
+                        if client is not None:
+                            from payload.video.gst import import_gst
+
+                            client.set_state(import_gst()[0].State.NULL)
+                        video.stop()
+    per_frame, latency_ms = off.per_frame, off.latency_ms
     if not per_frame:
         raise SourceError("bench %s: the source gave no frame" % source)
     n = len(per_frame)
     decode_s = sum(t["decode"] for t in per_frame) / 1000.0
-    fps_e2e = n / elapsed_s
+    fps_e2e = n / off.elapsed_s
     providers = [m.providers[0] for m in onnx_sessions(runner)]
     return BenchReport(
-        source=source, runner=runner_name, size_wh=size_wh, frames=n, modules=_module_times(per_frame),
-        fps_end_to_end=fps_e2e, fps_without_decode=n / max(elapsed_s - decode_s, 1e-9), fps_decode_only=fps_decode,
-        decode_ratio=fps_e2e / fps_decode, latency_p50_ms=_percentile(latency_ms, 50),
-        latency_p99_ms=_percentile(latency_ms, 99), latency_max_ms=max(latency_ms), modes=dict(modes),
-        frames_with_target=with_target, messages_sent=sent, messages_received=sink.non_heartbeat,
+        source=source, runner=runner_name, size_wh=off.size_wh, frames=n, modules=_module_times(per_frame),
+        fps_end_to_end=fps_e2e, fps_without_decode=n / max(off.elapsed_s - decode_s, 1e-9),
+        fps_decode_only=fps_decode, decode_ratio=fps_e2e / fps_decode, latency_p50_ms=_percentile(latency_ms, 50),
+        latency_p99_ms=_percentile(latency_ms, 99), latency_max_ms=max(latency_ms), modes=dict(off.modes),
+        frames_with_target=off.with_target, messages_sent=off.sent, messages_received=received,
         providers=providers, threads=cfg.detector.threads, cpu_count=os.cpu_count() or 0,
         load_avg=tuple(os.getloadavg()) if hasattr(os, "getloadavg") else (0.0, 0.0, 0.0),
+        fps_stream_off=max(_fps(p) for p in [off] + off_again) if on else float("nan"),
+        fps_stream_on=max(_fps(p) for p in on) if on else float("nan"),
+        stream=stream_text, stream_frames=stream_frames, stream_dropped=stream_dropped,
     )

@@ -37,6 +37,7 @@ from payload.config.schema import (
     MotionConfig,
     MountConfig,
     OutputsConfig,
+    RecordingConfig,
     Retry,
     ScanConfig,
     SearchRegionConfig,
@@ -47,6 +48,7 @@ from payload.config.schema import (
     SyntheticSceneConfig,
     TargetConfig,
     VerifierConfig,
+    VideoConfig,
     check_connection,
     connection_problem,
 )
@@ -54,9 +56,9 @@ from payload.config.schema import (
 __all__ = [
     "MAX_BYTES", "MAX_NODES", "RESTART_KEYS", "AppearanceConfig", "CameraConfig", "CaptureConfig", "ClassifierConfig",
     "Config", "DetectorConfig", "GlobalStageConfig", "LoggingConfig", "MavlinkCameraConfig", "MavlinkConfig", "MavlinkOutputsConfig",
-    "MotionConfig", "MountConfig", "OutputsConfig", "Retry", "ScanConfig", "SearchRegionConfig", "Section",
-    "SigningConfig", "StageConfig", "SwitcherConfig", "SyntheticSceneConfig", "TargetConfig", "VerifierConfig", "changed_keys",
-    "check_connection",
+    "MotionConfig", "MountConfig", "OutputsConfig", "RecordingConfig", "Retry", "ScanConfig", "SearchRegionConfig", "Section",
+    "SigningConfig", "StageConfig", "SwitcherConfig", "SyntheticSceneConfig", "TargetConfig", "VerifierConfig", "VideoConfig",
+    "changed_keys", "check_connection",
     "config_with", "connection_problem", "file_problems", "flat_config", "is_restart_key", "load_config",
     "load_run_config", "load_signing_key", "parse_config", "path_problem", "read_yaml", "restart_required",
     "section_changes", "writable_dir_problem",

@@ -34,6 +34,21 @@ RESTART_KEYS = (
     "detector.classifier.model",
     "detector.verifier.model",
     "outputs",
+    # video and recording: all but payload.video.output.LIVE_KEYS
+    "video.enabled",
+    "video.transport",
+    "video.rtsp_port",
+    "video.path",
+    "video.advertise_host",
+    "video.udp_host",
+    "video.udp_port",
+    "video.width",
+    "video.height",
+    "video.fps",
+    "video.encoder",
+    "recording.enabled",
+    "recording.dir",
+    "recording.segment_s",
 )
 
 

@@ -372,10 +372,56 @@ class MavlinkConfig(Section):
 
 class OutputsConfig(Section):
     directory: Optional[str] = Field(None, description="Where detections.csv and decisions.csv are written; null = not written.")
-    video: bool = Field(False, description="Also write an annotated video there.")
     # The CSVs are appended to across restarts; at this size a file becomes FILE.1 (FILE.1 -> FILE.2 ...).
     max_file_bytes: int = Field(100_000_000, ge=10_000, le=10**12, description="Rotate a CSV at this size.")
     keep_files: int = Field(5, ge=0, le=1000, description="Rotated CSVs kept beside the current one.")
+
+
+class VideoConfig(Section):
+    enabled: bool = Field(False, description="Serve the annotated H.264 stream for the ground station.")
+    transport: Literal["rtsp", "udp"] = Field(
+        "rtsp", description="rtsp: a server at rtsp_port/path; udp: RTP sent to udp_host:udp_port (also the "
+                            "fallback when the RTSP server is not installed).")
+    rtsp_port: int = Field(8554, ge=0, le=65535, description="RTSP server port; 0 = any free port (tests).")
+    path: str = Field("/glad", description="RTSP mount path.")
+    advertise_host: Optional[str] = Field(
+        None, description="Host named in the stream URI; null = this machine's address on its default route.")
+    udp_host: str = Field("127.0.0.1", min_length=1, description="RTP/UDP destination (the ground station).")
+    udp_port: int = Field(5600, ge=1, le=65535, description="RTP/UDP destination port (QGroundControl: 5600).")
+    width: int = Field(1280, ge=64, le=3840, description="Stream (and recording) width; the frame is scaled to it.")
+    height: int = Field(720, ge=64, le=2160)
+    fps: float = Field(15.0, gt=0, le=60, description="Most frames a second sent; detection's rate when lower.")
+    bitrate_kbps: int = Field(2000, ge=100, le=50000)
+    encoder: Literal["auto", "openh264enc", "nvv4l2h264enc"] = Field(
+        "auto", description="auto: nvv4l2h264enc where present (Jetson), else openh264enc. No x264enc: GPL.")
+    annotate: bool = Field(True, description="Draw boxes, mode, score and lock state on the stream.")
+
+    @field_validator("path")
+    @classmethod
+    def _path(cls, value: str) -> str:
+        if not value.startswith("/") or len(value) < 2 or any(c.isspace() or c in "?#" for c in value):
+            raise ValueError("%r: expected an RTSP mount path such as /glad (a leading /, no spaces, ? or #)" % value)
+        return value
+
+    @model_validator(mode="after")
+    def _even(self):
+        if self.width % 2 or self.height % 2:
+            raise ValueError("width %d, height %d: both must be even (H.264 4:2:0)" % (self.width, self.height))
+        return self
+
+
+class RecordingConfig(Section):
+    enabled: bool = Field(False, description="Record the video onboard in rotating segments.")
+    dir: Optional[str] = Field(None, description="Folder of the segments (glad-*.mkv).")
+    segment_s: float = Field(60.0, ge=1, le=3600, description="A new segment this often.")
+    quota_mb: float = Field(2000.0, gt=0, le=10**7, description="Oldest segments deleted beyond this total.")
+    annotated: bool = Field(True, description="Record the annotated picture; false = the raw frames.")
+
+    @model_validator(mode="after")
+    def _dir(self):
+        if self.enabled and not self.dir:
+            raise ValueError("recording.enabled needs recording.dir: the folder for the segments")
+        return self
 
 
 class LoggingConfig(Section):
@@ -390,6 +436,8 @@ class Config(Section):
     detector: DetectorConfig = DetectorConfig()
     mavlink: MavlinkConfig = MavlinkConfig()
     outputs: OutputsConfig = OutputsConfig()
+    video: VideoConfig = VideoConfig()
+    recording: RecordingConfig = RecordingConfig()
     logging: LoggingConfig = LoggingConfig()
 
     @model_validator(mode="after")
@@ -397,6 +445,16 @@ class Config(Section):
         if self.mavlink.outputs.follow_target and self.target.span_m is None:
             raise ValueError("mavlink.outputs.follow_target needs target.span_m (the drones' span in metres, "
                              "calibrated as docs/mavlink.md says): without a range there is nothing to follow")
+        return self
+
+    @model_validator(mode="after")
+    def _quota(self):
+        # a segment is cut at a third of the quota: it must hold at least a second of video
+        least_mb = 3 * self.video.bitrate_kbps / 8.0 / 1000.0
+        if self.recording.enabled and self.recording.quota_mb < least_mb:
+            raise ValueError("recording.quota_mb %g holds less than 3 s of video at video.bitrate_kbps %d: "
+                             "raise it to %g or more, or lower the bitrate"
+                             % (self.recording.quota_mb, self.video.bitrate_kbps, least_mb))
         return self
 
 

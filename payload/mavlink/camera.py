@@ -41,6 +41,7 @@ from payload.config import Config, section_changes
 from payload.geometry import CameraModel
 from payload.mavlink.link import MavlinkLink, constant
 from payload.mavlink.transport import mavlink as _M
+from payload.video.description import RTSP, StreamDescription
 
 log = logging.getLogger(__name__)
 
@@ -80,19 +81,6 @@ _ENCODINGS = {"h264": constant("VIDEO_STREAM_ENCODING_H264", 1), "h265": constan
 _STREAM_ID = 1
 #: A track point with radius 0 (or a very small one) starts the search region's box this wide.
 _POINT_BOX_PX = 16.0
-
-
-@dataclass(frozen=True)
-class StreamDescription:
-    """The video stream the ground station should open (VIDEO_STREAM_INFORMATION). The service
-    passes the one the video output serves, or None without a stream."""
-
-    uri: str  # rtsp://HOST:PORT/PATH or udp://HOST:PORT (RTP)
-    width: int
-    height: int
-    fps: float
-    bitrate_kbps: int
-    encoding: str = "h264"  # h264 | h265
 
 
 @dataclass(frozen=True)
@@ -345,14 +333,14 @@ class CameraProtocol:
         s = self.stream
         if s is None:
             return False
-        rtsp = s.uri.lower().startswith("rtsp://")
+        rtsp = s.kind == RTSP
         return self.link.send_message(
             "VIDEO_STREAM_INFORMATION",
             stream_id=_STREAM_ID, count=1,
             type=_M.VIDEO_STREAM_TYPE_RTSP if rtsp else _M.VIDEO_STREAM_TYPE_RTPUDP,
             flags=_STREAM_RUNNING, framerate=float(s.fps), resolution_h=_u16(s.width), resolution_v=_u16(s.height),
             bitrate=int(s.bitrate_kbps) * 1000, rotation=0, hfov=_u16(round(math.degrees(self.camera_model().hfov_rad))),
-            name=b"glad", uri=s.uri.encode("utf-8")[:160], encoding=_ENCODINGS.get(s.encoding, 0), camera_device_id=0,
+            name=b"glad", uri=s.uri.encode("utf-8")[:160], encoding=_ENCODINGS.get(s.encoding.lower(), 0), camera_device_id=0,
         )
 
     def _send_stream_status(self) -> bool:
