@@ -104,6 +104,10 @@ class Service:
         cfg = self.cfg
         self.notifier.status("loading models")
         self.glad = Glad(cfg.detector)  # loads and warms up the ONNX models
+        if cfg.video.enabled or cfg.recording.enabled:  # before the link: the camera protocol announces the stream
+            from payload.video.output import VideoOutput
+
+            self.video = VideoOutput.open(cfg)
         if cfg.mavlink.enabled:
             from payload.mavlink.camera import CameraProtocol
             from payload.mavlink.link import MavlinkLink
@@ -111,7 +115,7 @@ class Service:
 
             self.link = MavlinkLink(cfg.mavlink)
             self.link.position_rate_hz = self._position_rate_hz(cfg)
-            self.camera = CameraProtocol(self.link, cfg, self.stream)
+            self.camera = CameraProtocol(self.link, cfg, self.stream or self.stream_description())
             self.link.start()
             self.publisher = TargetPublisher(self.link, cfg.mavlink.outputs)
             self.publisher.camera = self.camera
@@ -125,12 +129,6 @@ class Service:
                                           out.max_file_bytes, out.keep_files)
             self._decisions_csv = CsvLog(os.path.join(out.directory, "decisions.csv"), DECISION_FIELDS,
                                          out.max_file_bytes, out.keep_files)
-        if cfg.video.enabled or cfg.recording.enabled:
-            from payload.video.output import VideoOutput
-
-            self.video = VideoOutput.open(cfg)
-        if self.camera is not None and self.camera.stream is None:
-            self.camera.stream = self.stream_description()  # VIDEO_STREAM_INFORMATION names what is served
         self.notifier.status("opening %s" % cfg.capture.source)
         self.source = open_source(cfg.capture)
         self.source.open()
