@@ -308,9 +308,11 @@ def test_disk_full_is_reported_once_and_detection_goes_on(tmp_path):
     for name in ("decisions.csv", "detections.csv"):
         os.symlink("/dev/full", str(out / name))  # every write: ENOSPC, as on a full disk
     cfg_path = tmp_path / "payload.yaml"
+    # every lock reported at once (no lock verifier): both files get rows to fail on within 90 frames
     write(cfg_path, base_config(outputs={"directory": str(out)},
                                 capture={"pace": False, "synthetic": {"seed": 7, "width": 640, "height": 360,
-                                                                      "frames": 0}}))
+                                                                      "frames": 0}},
+                                detector={"verifier": {"enabled": False}}))
     log_path = tmp_path / "payload.log"
     proc = start(["run", "--config", str(cfg_path), "--frames", "90"], log_path)
     assert proc.wait(timeout=180) == 0, log_text(log_path)[-3000:]
