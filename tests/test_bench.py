@@ -92,7 +92,7 @@ def test_unknown_row_name_is_one_line_error():
 def synth(tmp_path_factory):
     """A short small synthetic clip with labels, and a config with a test classifier (the shipped
     detectors are used as they are)."""
-    from payload.bench.cli import synthetic_clip
+    from payload.offline import synthetic_clip
 
     for name in ("global", "local"):
         if not os.path.isfile(builtin_model_path(name)):

@@ -1,4 +1,3 @@
-import importlib.util
 import json
 import math
 import os
@@ -9,7 +8,7 @@ import pytest
 
 from payload.cli import main
 from payload.errors import DataError
-from payload.eval.cli import UsageError, clips_from_paths, format_table, score_clips, split_clips
+from payload.eval.cli import format_table
 from payload.eval.labels import detect_format, load_labels
 from payload.eval.metrics import (
     ap_11point,
@@ -21,6 +20,7 @@ from payload.eval.metrics import (
     score_clip,
 )
 from payload.geometry import CameraModel
+from payload.offline import UsageError, clips_from_paths, score_clips, split_clips
 from payload.records import DetectionsCsvWriter
 from payload.types import Detections
 
@@ -481,10 +481,6 @@ def test_clips_with_labels_found_beside_and_scored_with_a_real_video(halmstad_di
 
 @pytest.mark.slow
 def test_split_runs_glad_end_to_end(halmstad_dir, capsys):
-    # Skip only where the detect command does not exist yet; once it does, any failure to import
-    # or run it (a missing module, a missing model) is a real failure of `eval --split`.
-    if importlib.util.find_spec("payload.detect_cmd") is None:
-        pytest.skip("payload.detect_cmd (run_detect) not in this tree")
     rc = main(["eval", "--split", "val", "--limit", "2", "--no-progress"])
     out = capsys.readouterr()
     assert rc == 0, out.err
