@@ -14,7 +14,6 @@ from payload.eval.metrics import (
     ap_11point,
     bearing_error_deg,
     centre_match_frame,
-    iou_matrix,
     match_frame,
     pool,
     score_clip,
@@ -30,20 +29,6 @@ def _det(boxes, scores, module="GAD"):
 
 
 # ---------------------------------------------------------------- IoU and matching
-
-
-@pytest.mark.parametrize(
-    "a, b, iou",
-    [
-        ([0, 0, 10, 10], [0, 0, 10, 10], 1.0),
-        ([0, 0, 10, 10], [0, 0, 10, 5], 0.5),  # half covered
-        ([0, 0, 10, 10], [10, 0, 20, 10], 0.0),  # touching edges share no area
-        ([0, 0, 10, 10], [5, 5, 15, 15], 25.0 / 175.0),
-        ([0, 0, 0, 0], [0, 0, 0, 0], 0.0),  # degenerate boxes never match
-    ],
-)
-def test_iou(a, b, iou):
-    assert iou_matrix(np.array([a]), np.array([b]))[0, 0] == pytest.approx(iou)
 
 
 def test_iou_of_exactly_half_is_not_a_match_but_just_above_is():
