@@ -1,5 +1,5 @@
 """Search-region ego-motion: homography error against the synthetic scene's true homographies,
-and time, for several working widths / grids / LK settings (docs/results.md, speed work).
+and time, for several working widths / grids / LK settings (docs/notebook/2026-11-22.md, "Speed work").
 
   PYTHONPATH=. python bench/ego_motion_accuracy.py
 """

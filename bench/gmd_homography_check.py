@@ -9,10 +9,10 @@ import time
 import cv2
 import numpy as np
 
+from payload.boxes import iou_matrix
 from payload.config import Config
 from payload.detect.motion import MotionDetector, estimate_homography
 from payload.detect.pipeline import GreyLevels, _to_full_frame
-from payload.eval.metrics import iou_matrix
 from payload.synth.scene import Scene
 
 

@@ -13,14 +13,11 @@ is missing or the port taken) and its URI printed at the first frame, to open in
 ground station while the demo runs; without GStreamer the demo runs without it.
 """
 
-import json
 import logging
 import os
-import socket
 import subprocess
 import sys
 import time
-from collections import Counter
 from typing import Dict, List, Optional
 
 import numpy as np
@@ -28,31 +25,11 @@ import numpy as np
 from payload.annotate import VideoOut, draw_result
 from payload.config import Config, config_with, load_config
 from payload.detect.pipeline import GladResult
-from payload.errors import SourceError
+from payload.loopback import free_udp_port, read_record, record_rows, start_fake_autopilot, wait_listening
 from payload.service import Service
 from payload.types import Frame
 
 log = logging.getLogger(__name__)
-
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-FAKE_AUTOPILOT = os.path.join(REPO, "sitl", "fake_autopilot.py")
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def start_fake_autopilot(port: int, record: str, extra=()) -> subprocess.Popen:
-    if not os.path.exists(FAKE_AUTOPILOT):
-        raise SourceError("demo: %s not found: the demo runs from a source checkout" % FAKE_AUTOPILOT)
-    return subprocess.Popen(
-        [sys.executable, FAKE_AUTOPILOT, "--listen", "udpin:127.0.0.1:%d" % port, "--record", record,
-         "--stdin-control", *extra],
-        stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-    )
-
 
 # the camera protocol's commands and answers, by number (common.xml)
 _CMD_NAMES = {512: "REQUEST_MESSAGE", 2004: "CAMERA_TRACK_POINT", 2005: "CAMERA_TRACK_RECTANGLE",
@@ -141,44 +118,6 @@ def camera_exchange(path: str) -> List[str]:
             lines.append("VIDEO_STREAM_INFORMATION: %s" % r["fields"]["uri"])
             break
     return lines
-
-
-def wait_listening(autopilot: subprocess.Popen, record: str, timeout_s: float = 15.0) -> None:
-    """Until the fake autopilot listens: it writes its record's first line once its port is bound.
-    Else the first frames' messages would go nowhere (a busy machine takes a second or more to
-    start it)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if autopilot.poll() is not None:
-            err = autopilot.stderr.read().decode("utf-8", "replace").strip().splitlines() if autopilot.stderr else []
-            raise SourceError("demo: the fake autopilot exited (status %s): %s"
-                              % (autopilot.returncode, err[-1] if err else "no message"))
-        if os.path.exists(record) and os.path.getsize(record) > 0:
-            return
-        time.sleep(0.05)
-    log.warning("demo: fake autopilot not listening after %.0f s; starting anyway", timeout_s)
-
-
-def record_rows(path: str) -> List[dict]:
-    """The fake autopilot's record so far: one dict a complete line. Read at once and cut at line
-    ends, because the autopilot may be half-way through its last line (iterating the file would
-    yield that half, then its other half as a line of its own once the file has grown)."""
-    if not os.path.exists(path):
-        return []  # not started writing yet
-    with open(path, encoding="utf-8") as fh:
-        text = fh.read()
-    rows = []
-    for line in text.split("\n")[:-1]:
-        try:
-            rows.append(json.loads(line))
-        except ValueError:
-            pass  # a line cut by a kill, continued by a restarted autopilot
-    return rows
-
-
-def read_record(path: str) -> Counter:
-    """Message type -> count of what the fake autopilot received from us."""
-    return Counter(row.get("type", "?") for row in record_rows(path) if row.get("dir") == "in")
 
 
 def demo_config(base: Config, out_dir: str, frames: int, port: int) -> Config:

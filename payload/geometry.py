@@ -132,12 +132,6 @@ class CameraModel:
         ray = np.array([xy[0, 0, 0], xy[0, 0, 1], 1.0])
         return ray / np.linalg.norm(ray)
 
-    def ray_cam_to_pixel(self, ray_cam: Sequence[float]) -> Tuple[float, float]:
-        """Inverse of ``pixel_to_ray_cam`` (with distortion): the continuous pixel position of a ray."""
-        pts = np.asarray(ray_cam, np.float64).reshape(1, 1, 3)
-        dist = np.zeros(5) if self.distortion is None else self.distortion
-        uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.matrix, dist)
-        return float(uv[0, 0, 0]) + 0.5, float(uv[0, 0, 1]) + 0.5
 
 
 def bearing_for(

@@ -1,4 +1,4 @@
-"""payload.detect.appearance: letterbox mapping, decoding, NMS, and the shipped detectors on real frames."""
+"""payload.detect.appearance: letterbox mapping, decoding, and the shipped detectors on real frames."""
 
 import os
 
@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from onnx_factories import bright_spot_detector
 
+from payload.boxes import iou_matrix
 from payload.config import AppearanceConfig, DetectorConfig
-from payload.detect.appearance import AppearanceDetector, letterbox, nms
+from payload.detect.appearance import AppearanceDetector, letterbox
 from payload.detect.onnx_model import OnnxModel
 from payload.errors import ModelError
 from payload.models import build_detectors, builtin_model_path
@@ -92,21 +93,6 @@ def test_model_with_wrong_output_layout_is_refused(tmp_path):
         detector(OnnxModel(path), (128, 128))
 
 
-@pytest.mark.parametrize(
-    "xyxy, score, iou, kept",
-    [
-        ([[0, 0, 10, 10], [1, 1, 11, 11], [50, 50, 60, 60]], [0.9, 0.8, 0.7], 0.4, [0, 2]),
-        ([[0, 0, 10, 10], [1, 1, 11, 11]], [0.6, 0.8], 0.4, [1]),
-        ([[0, 0, 10, 10], [5, 0, 15, 10]], [0.9, 0.8], 0.4, [0, 1]),  # IoU 1/3 < 0.4: both stay
-        ([[0, 0, 10, 10], [5, 0, 15, 10]], [0.9, 0.8], 0.3, [0]),
-        (np.zeros((0, 4)), [], 0.4, []),
-    ],
-)
-def test_nms(xyxy, score, iou, kept):
-    keep = nms(np.asarray(xyxy, np.float32).reshape(-1, 4), np.asarray(score, np.float32), iou)
-    assert keep.tolist() == kept
-
-
 def _shipped(name):
     path = builtin_model_path(name)
     if not os.path.exists(path):
@@ -130,13 +116,6 @@ def _val_frame(halmstad_dir, clip="V_DRONE_013", index=60):
     return image, np.array([x - 1, y - 1, x - 1 + w, y - 1 + h], np.float32)
 
 
-def _iou(a, b):
-    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
-
-
 def test_shipped_global_detector_finds_the_drone_in_a_val_frame(halmstad_dir):
     _shipped("global")
     image, truth = _val_frame(halmstad_dir)
@@ -144,7 +123,7 @@ def test_shipped_global_detector_finds_the_drone_in_a_val_frame(halmstad_dir):
     dets = models.global_appearance.detect(image)
     assert len(dets) >= 1
     best = dets.sorted_by_score()[0]
-    assert _iou(best.xyxy[0], truth) > 0.5, (best.xyxy, truth)
+    assert iou_matrix(best.xyxy[0], truth)[0, 0] > 0.5, (best.xyxy, truth)
     assert best.module[0] == "GAD"
 
 
@@ -157,7 +136,7 @@ def test_shipped_local_detector_finds_the_drone_in_a_search_region(halmstad_dir)
     dets = models.local_appearance.detect(image[y0:y0 + 300, x0:x0 + 300], offset_xy=(x0, y0))
     assert len(dets) >= 1
     best = dets.sorted_by_score()[0]
-    assert _iou(best.xyxy[0], truth) > 0.5, (best.xyxy, truth)
+    assert iou_matrix(best.xyxy[0], truth)[0, 0] > 0.5, (best.xyxy, truth)
     assert best.module[0] == "LAD"
 
 

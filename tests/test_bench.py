@@ -1,4 +1,4 @@
-"""glad-payload bench: tiling, the ablation rows, and the profile on a short synthetic clip."""
+"""glad-payload bench: the tiled baseline, the ablation rows, and the profile on a short synthetic clip."""
 
 import json
 import math
@@ -10,11 +10,12 @@ import yaml
 from onnx_factories import bright_spot_detector, brightness_classifier
 
 from payload.bench.ablation import ABLATION_ROWS, BASELINE_ROWS, run_row, select_rows
+from payload.boxes import tiles_xyxy
 from payload.cli import main
 from payload.config import AppearanceConfig, Config, config_with, load_config
 from payload.detect.appearance import AppearanceDetector
 from payload.detect.onnx_model import OnnxModel
-from payload.detect.tiled import TiledDetector, tile_starts, tiles_xyxy
+from payload.detect.tiled import TiledDetector
 from payload.errors import ConfigError
 from payload.models import builtin_model_path
 from payload.types import GAD, GMD, LAD, LMD
@@ -23,31 +24,6 @@ CLIP_FRAMES = 10
 
 
 # --- tiling ------------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("size_wh", [(640, 512), (1920, 1080), (320, 320), (200, 150), (1000, 333)])
-@pytest.mark.parametrize("tile_wh", [(320, 320), (256, 192)])
-@pytest.mark.parametrize("overlap", [0.0, 0.2, 0.5])
-def test_tiles_cover_the_frame_with_overlap(size_wh, tile_wh, overlap):
-    w, h = size_wh
-    tiles = tiles_xyxy(size_wh, tile_wh, overlap)
-    covered = np.zeros((h, w), bool)
-    for x1, y1, x2, y2 in tiles:
-        assert 0 <= x1 < x2 <= w and 0 <= y1 < y2 <= h
-        assert (x2 - x1, y2 - y1) == (min(tile_wh[0], w), min(tile_wh[1], h))  # every tile detector-sized
-        covered[y1:y2, x1:x2] = True
-    assert covered.all()
-    for length, tile in ((w, tile_wh[0]), (h, tile_wh[1])):
-        starts = tile_starts(length, tile, overlap)
-        assert starts[0] == 0 and starts[-1] + min(tile, length) == length
-        for a, b in zip(starts, starts[1:]):
-            assert b > a
-            assert a + tile - b >= overlap * tile - 1  # neighbours share at least the overlap (int stride)
-
-
-def test_tile_overlap_out_of_range_is_refused():
-    with pytest.raises(ValueError, match="overlap"):
-        tile_starts(640, 320, 1.0)
 
 
 def test_tiled_detector_maps_boxes_back_and_merges_duplicates(tmp_path):
@@ -92,7 +68,7 @@ def test_unknown_row_name_is_one_line_error():
 def synth(tmp_path_factory):
     """A short small synthetic clip with labels, and a config with a test classifier (the shipped
     detectors are used as they are)."""
-    from payload.bench.cli import synthetic_clip
+    from payload.offline import synthetic_clip
 
     for name in ("global", "local"):
         if not os.path.isfile(builtin_model_path(name)):

@@ -20,7 +20,7 @@ import yaml
 from test_service import decisions_count, read_decisions, start_autopilot, start_payload, stop, wait_for
 from test_video import Receiver
 
-from payload.demo import free_udp_port
+from payload.loopback import free_udp_port
 from payload.synth.scene import Scene
 
 pytestmark = pytest.mark.slow

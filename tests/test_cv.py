@@ -13,7 +13,6 @@ import pytest
 from payload.cli import main
 from payload.errors import DataError
 from payload.eval import cv
-from payload.eval.cli import ClipSpec, UsageError
 from payload.eval.folds import (
     FOLDS_FILE,
     MAX_NUMBER,
@@ -24,6 +23,7 @@ from payload.eval.folds import (
     make_folds,
     parse_clip,
 )
+from payload.offline import ClipSpec, UsageError
 from payload.types import Detections
 
 # ---------------------------------------------------------------- fold definition

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from payload.eval.cli import ClipSpec, score_clips, with_ego_motion
+from payload.offline import ClipSpec, score_clips, with_ego_motion
 from payload.synth.ego_motion import EgoMotionWarp
 from payload.types import Detections, Frame
 

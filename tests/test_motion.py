@@ -4,13 +4,13 @@ import cv2
 import numpy as np
 import pytest
 
+from payload.boxes import iou_matrix
 from payload.config import MotionConfig
 from payload.detect.motion import (
     HomographyEstimate,
     MotionDetector,
     estimate_homography,
     flow_spread,
-    merge_boxes,
 )
 
 W, H = 320, 240
@@ -24,10 +24,7 @@ def texture(h, w, seed, sigma, lo, hi):
 
 
 def iou(a, b):
-    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    return inter / ((a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter)
+    return iou_matrix(a, b)[0, 0]
 
 
 class Scene:
@@ -249,14 +246,6 @@ def test_nearby_boxes_merge_within_d1():
     assert len(det.detect(*far).candidates) == 2
     det.update_config(MotionConfig(blur_px=0, close_iterations=0, merge_distance_px=0))
     assert len(det.detect(*near).candidates) == 2
-
-
-def test_merge_boxes_is_transitive_and_uses_gaps():
-    boxes = np.array([[0, 0, 10, 10], [20, 0, 30, 10], [40, 0, 50, 10], [200, 200, 210, 210]], np.float32)
-    merged = merge_boxes(boxes, 15)  # A-B and B-C 10 px apart, A-C 30 px apart
-    assert sorted(merged.tolist()) == [[0, 0, 50, 10], [200, 200, 210, 210]]
-    long_boxes = np.array([[0, 0, 100, 10], [105, 0, 200, 10]], np.float32)  # centres 102 px apart
-    assert merge_boxes(long_boxes, 15).tolist() == [[0, 0, 200, 10]]
 
 
 def test_too_noisy_frame_gives_no_detections():

@@ -244,8 +244,8 @@ def test_no_retarget_without_the_jump_gate(tmp_path):
 # --- the global stage's native-resolution scan (detector.global.scan) --------------------------
 
 def test_scan_tiles_cover_the_frame_in_turn():
+    from payload.boxes import tiles_xyxy
     from payload.detect.scan import NativeScan
-    from payload.detect.tiled import tiles_xyxy
 
     every = tiles_xyxy((1920, 1080), (320, 320))
     scan = NativeScan()

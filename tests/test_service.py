@@ -11,7 +11,7 @@ import time
 import pytest
 import yaml
 
-from payload.demo import FAKE_AUTOPILOT, free_udp_port, record_rows
+from payload.loopback import FAKE_AUTOPILOT, free_udp_port, record_rows
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TARGET_TYPES = ("CAMERA_TRACKING_IMAGE_STATUS", "DEBUG_VECT")
@@ -34,7 +34,7 @@ def write_config(tmp_path, port, out_dir, frames=0, pace=False, timeout_s=3.0):
 
 
 def start_autopilot(port, record, *extra):
-    # payload.demo.start_fake_autopilot's, with a stdin to switch the link off and on (--stdin-control)
+    # payload.loopback.start_fake_autopilot's, with a stdin to switch the link off and on (--stdin-control)
     return subprocess.Popen(
         [sys.executable, FAKE_AUTOPILOT, "--listen", "udpin:127.0.0.1:%d" % port, "--record", str(record), *extra],
         stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,

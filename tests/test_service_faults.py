@@ -24,7 +24,7 @@ from onnx_factories import bright_spot_detector, failing_detector
 from test_service_lifecycle import NotifyListener, log_text, wait_log
 
 from payload.config import config_with, flat_config, is_restart_key, parse_config
-from payload.demo import free_udp_port
+from payload.loopback import free_udp_port
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PROBE = os.path.join(REPO, "tests", "reload_probe.py")

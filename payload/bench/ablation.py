@@ -16,11 +16,10 @@ from typing import Dict, List, Optional, Sequence
 from payload.bench.runners import build_runner
 from payload.capture import open_source
 from payload.config import Config, config_with
-from payload.detect_cmd import recording_config
 from payload.errors import ConfigError
-from payload.eval.cli import ClipSpec
 from payload.eval.labels import load_labels
 from payload.eval.metrics import ClipScore, pool, score_clip
+from payload.offline import ClipSpec, recording_config
 from payload.types import MODULES, Detections
 
 log = logging.getLogger(__name__)

@@ -20,7 +20,14 @@ from typing import List
 
 from payload.config import Config, load_config
 from payload.errors import DataError
-from payload.eval.cli import synthetic_clip
+from payload.offline import (
+    UsageError,
+    clips_from_paths,
+    find_splits,
+    split_clips,
+    synthetic_clip,
+    synthetic_clips,
+)
 
 log = logging.getLogger(__name__)
 
@@ -101,8 +108,6 @@ def _nan_to_none(data):
 
 
 def _ablation_clips(args, cfg: Config, tmp: str) -> List:
-    from payload.eval.cli import UsageError, clips_from_paths, find_splits, split_clips, synthetic_clips
-
     if args.split and args.clips:
         raise UsageError("--ablation: give --split or --clips, not both")
     if args.split:
@@ -115,8 +120,6 @@ def _ablation_clips(args, cfg: Config, tmp: str) -> List:
 
 
 def main_bench(args) -> int:
-    from payload.eval.cli import UsageError
-
     cfg = load_config(args.config)
     with tempfile.TemporaryDirectory(prefix="glad-bench-") as tmp:
         try:

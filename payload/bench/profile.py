@@ -31,9 +31,9 @@ import numpy as np
 
 from payload.capture import EndOfStream, open_source
 from payload.config import Config
-from payload.detect_cmd import recording_config
 from payload.errors import SourceError
 from payload.geometry import CameraModel, bearing_for, mount_from_config
+from payload.offline import recording_config
 
 log = logging.getLogger(__name__)
 

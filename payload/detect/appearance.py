@@ -17,6 +17,7 @@ from typing import Tuple
 import cv2
 import numpy as np
 
+from payload.boxes import nms
 from payload.config import AppearanceConfig
 from payload.detect.onnx_model import OnnxModel
 from payload.errors import ModelError
@@ -83,16 +84,6 @@ def decode(maps: np.ndarray, confidence: float, input_wh: Tuple[int, int]) -> Tu
     bw, bh = maps[0, 3, ys, xs], maps[0, 4, ys, xs]
     xyxy = np.stack([cx - bw / 2, cy - bh / 2, cx + bw / 2, cy + bh / 2], axis=1).astype(np.float32)
     return xyxy.reshape(-1, 4), s.astype(np.float32)
-
-
-def nms(xyxy: np.ndarray, score: np.ndarray, iou: float) -> np.ndarray:
-    """Indices kept by class-agnostic non-maximum suppression, highest score first."""
-    if len(score) == 0:
-        return np.zeros((0,), np.int64)
-    xywh = np.concatenate([xyxy[:, :2], xyxy[:, 2:] - xyxy[:, :2]], axis=1)
-    keep = cv2.dnn.NMSBoxes(xywh.tolist(), score.tolist(), 0.0, float(iou))
-    keep = np.asarray(keep, np.int64).reshape(-1)
-    return keep[np.argsort(-score[keep], kind="stable")]
 
 
 class AppearanceDetector:

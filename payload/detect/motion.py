@@ -22,6 +22,7 @@ from typing import Optional, Tuple
 import cv2
 import numpy as np
 
+from payload.boxes import merge_boxes
 from payload.config import MotionConfig
 from payload.types import GMD, LMD, Detections
 
@@ -176,42 +177,6 @@ def _check_pair(prev_grey: np.ndarray, cur_grey: np.ndarray) -> None:
             raise ValueError(f"motion: {name} must be a 2-D uint8 grey image, got {got}")
     if prev_grey.shape != cur_grey.shape:
         raise ValueError(f"motion: prev_grey {prev_grey.shape} and cur_grey {cur_grey.shape} differ in size")
-
-
-def merge_boxes(xyxy: np.ndarray, distance_px: float) -> np.ndarray:
-    """Union of boxes whose gap is smaller than ``distance_px``, transitively.
-
-    The gap is the Euclidean distance between the rectangles' nearest edges (0 when they touch
-    or overlap), not between their centres: a long blob split in two is merged however long it
-    is. Merging repeats until no two merged boxes are closer than the distance.
-    """
-    boxes = np.asarray(xyxy, np.float32).reshape(-1, 4)
-    while len(boxes) > 1:
-        gap_x = np.maximum(
-            0.0, np.maximum(boxes[:, None, 0] - boxes[None, :, 2], boxes[None, :, 0] - boxes[:, None, 2])
-        )
-        gap_y = np.maximum(
-            0.0, np.maximum(boxes[:, None, 1] - boxes[None, :, 3], boxes[None, :, 1] - boxes[:, None, 3])
-        )
-        near = np.hypot(gap_x, gap_y) < distance_px
-        if near.sum() == len(boxes):  # only the diagonal
-            break
-        # Connected components of the "near" graph by label propagation (N <= max_blobs).
-        labels = np.arange(len(boxes))
-        while True:
-            spread = np.where(near, labels[None, :], len(boxes)).min(axis=1)
-            if np.array_equal(spread, labels):
-                break
-            labels = spread
-        groups = np.unique(labels)
-        boxes = np.array(
-            [
-                np.concatenate([boxes[labels == g, :2].min(axis=0), boxes[labels == g, 2:].max(axis=0)])
-                for g in groups
-            ],
-            np.float32,
-        )
-    return boxes
 
 
 class MotionDetector:

@@ -130,7 +130,8 @@ class OnnxModel:
         opts.log_severity_level = 4
         # Idle intra-op threads must sleep, not spin: on 2-6 cores a spinning ORT worker takes a
         # core from the OpenCV work (decode, optical flow) that follows each inference.
-        # Measured on 2 cores (docs/results.md): 146 -> 230 FPS, p99 latency 23 -> 8 ms, 640x512.
+        # Measured on 2 cores (docs/notebook/2026-11-22.md, "Speed work"): 146 -> 230 FPS,
+        # p99 latency 23 -> 8 ms, 640x512.
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
             self.session = ort.InferenceSession(path, sess_options=opts, providers=providers)

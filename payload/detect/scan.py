@@ -14,7 +14,7 @@ from typing import Dict, Tuple
 
 import numpy as np
 
-from payload.detect.tiled import tiles_xyxy
+from payload.boxes import tiles_xyxy
 
 
 class NativeScan:

@@ -24,9 +24,9 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from payload.errors import DataError
-from payload.eval.cli import ClipSpec, DetectFn, UsageError, score_clips
 from payload.eval.folds import Folds, parse_clip
 from payload.eval.metrics import IOU_MATCH, ClipScore, pool
+from payload.offline import ClipSpec, DetectFn, UsageError, score_clips
 from payload.records import DetectionsCsvWriter, read_detections_csv
 from payload.types import Detections
 

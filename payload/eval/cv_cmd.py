@@ -7,21 +7,11 @@ import time
 from typing import Any, Dict, List
 
 from payload.errors import DataError
-from payload.eval.cli import UsageError, camera_for, describe_camera, find_splits
+from payload.offline import UsageError, camera_for, describe_camera, find_splits, glad_detector
 
 
 def _detector_for(args, cfgs) -> Any:
-    from payload.detect_cmd import run_detect
-
-    def for_fold(fold: int):
-        cfg = cfgs[fold]
-
-        def detect(clip):
-            return run_detect(clip.video, cfg, limit=args.limit, progress=not args.no_progress)
-
-        return detect
-
-    return for_fold
+    return lambda fold: glad_detector(cfgs[fold], args.limit, not args.no_progress)
 
 
 def main_cv(args) -> int:

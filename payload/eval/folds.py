@@ -216,7 +216,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--block-size", type=int, default=BLOCK_SIZE)
     ap.add_argument("--write", action="store_true", help="write %s" % FOLDS_FILE)
     args = ap.parse_args(argv)
-    from payload.eval.cli import find_splits
+    from payload.offline import find_splits
 
     data_dir = args.data or os.path.dirname(find_splits(None))
     text = folds_text(make_folds(clip_frames(data_dir), args.k, args.block_size))

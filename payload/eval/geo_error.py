@@ -23,6 +23,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from payload.boxes import iou_matrix
 from payload.config import CameraConfig, Config, config_with, load_config
 from payload.geometry import (
     Attitude,
@@ -63,14 +64,6 @@ def _boxes_from_glad(cfg: Config, scene) -> Dict[int, np.ndarray]:
     return out
 
 
-def _iou(a, b) -> float:
-    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / union if union > 0 else 0.0
-
-
 def measure(cfg: Config, seeds: List[int], frames: int, span_m: float, boxes: str, width: int, height: int,
             hfov_deg: float = 60.0) -> List[dict]:
     """One sample per frame with a usable box: size, true and estimated range, position error."""
@@ -91,7 +84,7 @@ def measure(cfg: Config, seeds: List[int], frames: int, span_m: float, boxes: st
             box = truth.astype(np.float64)
             if detected is not None:
                 box = detected.get(sf.index)
-                if box is None or _iou(box, truth) <= 0.1:
+                if box is None or iou_matrix(box, truth)[0, 0] <= 0.1:
                     continue
             f = f1 * sf.camera_zoom
             # the lens of this frame as a calibration: principal point at the image centre

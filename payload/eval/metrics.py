@@ -20,24 +20,11 @@ from typing import Dict, List, Mapping, Optional, Sequence
 
 import numpy as np
 
+from payload.boxes import iou_matrix
 from payload.types import Detections
 
 IOU_MATCH = 0.5  # a true positive needs IoU strictly greater than this
 RECALL_POINTS = np.arange(11) / 10.0  # exact k/10, compared with exact-rational recalls
-
-
-def iou_matrix(a_xyxy: np.ndarray, b_xyxy: np.ndarray) -> np.ndarray:
-    """(n, m) IoU between two sets of ``xyxy`` boxes (areas as continuous w*h, no +1)."""
-    a = np.asarray(a_xyxy, np.float64).reshape(-1, 4)
-    b = np.asarray(b_xyxy, np.float64).reshape(-1, 4)
-    lt = np.maximum(a[:, None, :2], b[None, :, :2])
-    rb = np.minimum(a[:, None, 2:], b[None, :, 2:])
-    inter = np.prod(np.clip(rb - lt, 0.0, None), axis=2)
-    area_a = np.prod(np.clip(a[:, 2:] - a[:, :2], 0.0, None), axis=1)
-    area_b = np.prod(np.clip(b[:, 2:] - b[:, :2], 0.0, None), axis=1)
-    union = area_a[:, None] + area_b[None, :] - inter
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
 def match_frame(dets: Detections, gt_xyxy: np.ndarray, iou_match: float = IOU_MATCH) -> np.ndarray:

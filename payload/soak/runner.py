@@ -21,8 +21,8 @@ from typing import Callable, Dict, List, Optional, Tuple
 import yaml
 
 from payload.config import config_with, load_config
-from payload.demo import FAKE_AUTOPILOT, free_udp_port
 from payload.errors import PayloadError, SourceError
+from payload.loopback import FAKE_AUTOPILOT, free_udp_port
 from payload.soak import KINDS
 from payload.soak.books import Books
 from payload.soak.clip import corrupt, render_folder, restore
