@@ -151,7 +151,7 @@ class StageConfig(Section):
 
 
 class ScanConfig(Section):
-    # Synthetic 1080p tuning scenes (seeds 7-16, 4-20 px; docs/results.md "Native scan"): F 0.642 without,
+    # Synthetic 1080p tuning scenes (seeds 7-16, 4-20 px; docs/notebook/2026-12-01-session4.md "Native scan"): F 0.642 without,
     # 0.680 with 4 tiles a frame, 0.700 with 6 (scan after GMD, hits at T0 and classifier 0.8). 4: a frame
     # spent searching costs ~8 ms more (6: ~13 ms); the whole 1080p frame (32 tiles) is seen every 8 frames.
     # Halmstad val (640x512, input scale 0.75) scanned on every frame fell from F 0.830 to 0.809: max_input_scale.
@@ -185,7 +185,7 @@ class ClassifierConfig(Section):
     # 2 hits in a row at 0.8 (replayed loc8 traces): negatives_train (110 clips of birds, airliners,
     # helicopters) frames with a detection 10.9 % -> 5.7 %, val F 0.842 -> 0.830, val warped (seed 1)
     # 0.813 -> 0.783. Judging only a lock's first 2 hits cut negatives_train to 3.2 % but lost
-    # V_DRONE_069 for good (val 0.775): one doubtful start silenced a drone (sweep in docs/results.md)
+    # V_DRONE_069 for good (val 0.775): one doubtful start silenced a drone (sweep in docs/notebook/2026-12-01-session3.md "Lock confirmation")
     confirm_hits: int = Field(
         2, ge=0, le=1000,
         description="Report a lock from the first time N hits in a row average confirm_threshold; 0 = at once.",
@@ -220,14 +220,14 @@ class SearchRegionConfig(Section):
     # A lock's confidence, not one frame's: the local detector's score jitters from frame to frame
     # as its box does, and ranking the reported boxes by the lock's recent evidence ranks them
     # better. Same boxes, so P/R/F are unchanged; AP with 0.3: val 0.729 -> 0.736, ir_val
-    # 0.879 -> 0.882, train 0.757 both, synthetic 7-16 0.531 -> 0.529 (docs/results.md).
+    # 0.879 -> 0.882, train 0.757 both, synthetic 7-16 0.531 -> 0.529 (docs/notebook/2026-12-01-session5.md).
     score_smoothing: float = Field(0.3, gt=0, le=1, description="Weight of the newest local score in the reported score; 1 = raw scores.")
 
 
 class SwitcherConfig(Section):
     # 10, not the paper's 30: on val a lock lost for 10 frames had mostly lost a drone that the camera's
     # jump or a wrong lock had put outside the region (val F 0.767 -> 0.795 with 10; synthetic tuning
-    # scenes 0.615 -> 0.609; sweep in docs/results.md)
+    # scenes 0.615 -> 0.609; sweep in docs/notebook/2026-12-01-session2.md "Parameter choices")
     max_local_misses: int = Field(10, ge=0, le=100000, description="Back to global after this many local misses.")
     pick: Literal["confidence", "distance"] = Field("confidence", description="Local choice among several hits.")
     # 50 px as in the authors' code: without it a lock wanders off to the weak clutter hits that T1 = 0.1

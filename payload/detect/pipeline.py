@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 # Camera motion for the search region is estimated on a grey image no wider than this, from a
 # coarser key-point grid than the motion detector's: the region only needs its centre carried
 # to a few pixels, and this runs on every local frame. Measured on 40 synthetic 1080p frames
-# against their true homographies (docs/results.md): 640 px and 30x20 points, 0.25 px mean
+# against their true homographies (docs/notebook/2026-11-22.md "Speed work"): 640 px and 30x20 points, 0.25 px mean
 # error at full resolution and ~10 ms; 320 px and 15x10 points, 0.45 px and ~2.8 ms (2 loaded cores).
 _EGO_MOTION_WIDTH_PX = 320
 _EGO_MOTION_GRID_WH = (15, 10)
