@@ -250,6 +250,28 @@ def fmt(per_fold: List[Dict[str, Dict[str, float]]]) -> str:
     return "\n".join(lines)
 
 
+def _mean(per_fold, groups, key):
+    v = [f[g][key] for f in per_fold for g in groups if g in f]
+    return float(np.mean(v)) if v else float("nan")
+
+
+def choose(rules: Dict[str, List], max_loss: float) -> Dict:
+    """The rule with the fewest frames with a false target (mean over folds of the negative groups)
+    among those whose mean centre-F over the drone groups is at most ``max_loss`` below LockCheck's."""
+    drones = [g for g in GROUPS if g.endswith("drones")]
+    negatives = [g for g in GROUPS if not g.endswith("drones")]
+    base_cf = _mean(rules["lockcheck"], drones, "cF")
+    table = []
+    for name, per_fold in rules.items():
+        cf, false = _mean(per_fold, drones, "cF"), _mean(per_fold, negatives, "target%")
+        table.append(dict(rule=name, drone_cF=cf, false_target_pct=false, ok=cf >= base_cf - max_loss))
+    for row in table:
+        print("  %-36s drone cF %.3f  false targets %.2f %%%s" % (row["rule"], row["drone_cF"], row["false_target_pct"],
+                                                                  "" if row["ok"] else "  (loses too much)"))
+    best = min((r for r in table if r["ok"]), key=lambda r: r["false_target_pct"])
+    return dict(best, lockcheck_drone_cF=base_cf)
+
+
 def export(net, path: str) -> None:
     import torch
 
@@ -264,9 +286,10 @@ def main():
     ap.add_argument("--out", default="training/runs/verifier")
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--min-frames", type=int, nargs="+", default=[8])
-    ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.5, 0.7, 0.8, 0.9, 0.95])
+    ap.add_argument("--min-frames", type=int, nargs="+", default=[4, 8, 12])
+    ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
     ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
+    ap.add_argument("--max-loss", type=float, default=0.05, help="centre-F the drone groups may lose to the verifier")
     ap.add_argument("--export", default=None, help="also train on every clip and write this ONNX file")
     args = ap.parse_args()
     import torch
@@ -297,6 +320,10 @@ def main():
             res = [score(fc, {c["name"]: replay(c, prob[c["name"]], th, rel, mf) for c in fc}) for fc in folds]
             print("\nverifier min_frames %d threshold %.2f release %.2f:\n%s" % (mf, th, rel, fmt(res)))
             report["rules"]["verifier mf%d th%.2f rel%.2f" % (mf, th, rel)] = res
+    choice = choose(report["rules"], args.max_loss)
+    report["choice"] = choice
+    print("\nchosen (the fewest false targets, mean over folds and negative groups, among the rules that lose at most "
+          "%.2f centre-F on the drone groups against LockCheck only): %s" % (args.max_loss, choice))
     with open(os.path.join(args.out, "cv.json"), "w") as f:
         json.dump(report, f, indent=1)
     np.savez_compressed(os.path.join(args.out, "oof_prob.npz"), **prob)
