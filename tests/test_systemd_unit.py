@@ -131,7 +131,7 @@ def test_sandbox_keeps_camera_gpu_and_uart_reachable():
         assert allowed.get(device) == "rw", device
     assert "PrivateDevices" not in service and "PrivateNetwork" not in service
     assert service["CapabilityBoundingSet"] == [""]
-    assert service["SystemCallFilter"] == ["@system-service", "~@privileged @resources", "sched_setaffinity"]
+    assert service["SystemCallFilter"] == ["@system-service", "~@privileged @resources", "sched_setaffinity setpriority"]
     assert service["SystemCallArchitectures"] == ["native"]
     families = service["RestrictAddressFamilies"][0].split()
     assert {"AF_UNIX", "AF_INET", "AF_INET6"} <= set(families)  # sd_notify, MAVLink over UDP

@@ -51,7 +51,10 @@ def import_gst():
         import gi
 
         gi.require_version("Gst", "1.0")
-        from gi.repository import GLib, Gst
+        gi.require_version("GstApp", "1.0")
+        # GstApp before any appsrc/appsink exists: PyGObject wraps an element's class once, and one
+        # made without GstApp loaded never gets its methods (the capture's appsink.try_pull_sample)
+        from gi.repository import GLib, Gst, GstApp  # noqa: F401
     except (ImportError, ValueError) as exc:
         raise VideoUnavailable("GStreamer is not usable from Python (%s): install the gstreamer extra "
                                "(PyGObject) and gir1.2-gstreamer-1.0" % _one_line(exc)) from None
