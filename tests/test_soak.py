@@ -21,10 +21,15 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 @pytest.mark.slow
 def test_short_soak_injects_every_fault_and_passes(tmp_path):
     out = tmp_path / "soak"
+    # The lock verifier off: on this 16-frame loop (the drone jumps back every 0.5 s) it reported no
+    # target at all on the Python 3.8 / OpenCV 4.5 venv (on 3.11 it did), and this test needs a steady
+    # stream of bearings to measure their loss under faults, not the verifier's verdict on a loop.
+    base = tmp_path / "base.yaml"
+    base.write_text("detector:\n  verifier:\n    enabled: false\n")
     env = dict(os.environ, PYTHONPATH=REPO + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.run(
         [sys.executable, "-m", "payload", "soak", "--minutes", "0.5", "--every", "4", "--clip-frames", "16",
-         "--size", "640", "360", "--out", str(out)],
+         "--size", "640", "360", "--config", str(base), "--out", str(out)],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=240,
     )
     report = proc.stdout
