@@ -79,7 +79,7 @@ _UINT64_MAX = (1 << 64) - 1
 _ANGLE_MAX = 4 * math.pi  # |roll|, |pitch|, |yaw| beyond this is not an attitude
 _SIGNING_LINK_ID = 0
 #: MAVLink extension fields newer than some pymavlink releases still in use; sent only where known.
-_NEWER_EXTENSIONS = ("camera_device_id",)
+_NEWER_EXTENSIONS = ("camera_device_id", "gimbal_device_id", "encoding")  # absent from pymavlink 2.4.38 (the floor)
 #: mavlink.* keys that ``MavlinkLink.apply`` changes on a running link; the others need a restart.
 LIVE_KEYS = (
     "command_sysids", "heartbeat_hz", "autopilot_timeout_s", "attitude_rate_hz", "timesync",
