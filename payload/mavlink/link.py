@@ -301,17 +301,12 @@ class MavlinkLink:
             samples = list(self._att)
         if offset is None or not samples:
             return None
-        t = int(t_monotonic_ns) + offset
-        times = [s[0] for s in samples]
-        i = bisect.bisect_left(times, t)
-        if i == 0 or i == len(samples):
-            nearest = samples[0] if i == 0 else samples[-1]
-            if abs(t - nearest[0]) > _ATTITUDE_HOLD_NS:
-                return None
-            return Attitude(nearest[1], nearest[2], nearest[3])
-        t0, r0, p0, y0 = samples[i - 1]
-        t1, r1, p1, y1 = samples[i]
-        a = (t - t0) / float(t1 - t0) if t1 > t0 else 0.0
+        around = _around(samples, int(t_monotonic_ns) + offset, _ATTITUDE_HOLD_NS)
+        if around is None:
+            return None
+        (_, r0, p0, y0), (_, r1, p1, y1), a = around
+        if around[0] is around[1]:
+            return Attitude(r0, p0, y0)
         dyaw = math.remainder(y1 - y0, 2 * math.pi)
         yaw = math.remainder(y0 + a * dyaw, 2 * math.pi)
         return Attitude(r0 + a * (r1 - r0), p0 + a * (p1 - p0), yaw)
@@ -326,17 +321,12 @@ class MavlinkLink:
             samples = list(self._pos)
         if offset is None or not samples:
             return None
-        t = int(t_monotonic_ns) + offset
-        times = [s[0] for s in samples]
-        i = bisect.bisect_left(times, t)
-        if i == 0 or i == len(samples):
-            nearest = samples[0] if i == 0 else samples[-1]
-            if abs(t - nearest[0]) > _POSITION_HOLD_NS:
-                return None
-            return Position(nearest[1], nearest[2], nearest[3])
-        t0, *p0 = samples[i - 1]
-        t1, *p1 = samples[i]
-        a = (t - t0) / float(t1 - t0) if t1 > t0 else 0.0
+        around = _around(samples, int(t_monotonic_ns) + offset, _POSITION_HOLD_NS)
+        if around is None:
+            return None
+        (_, *p0), (_, *p1), a = around
+        if around[0] is around[1]:
+            return Position(*p0)
         return Position(*(x0 + a * (x1 - x0) for x0, x1 in zip(p0, p1)))
 
     def add_command_handler(self, handler: Callable[[Any], bool]) -> None:
@@ -727,3 +717,13 @@ def _finite(msg: Any) -> bool:
         return max(abs(msg.roll), abs(msg.pitch), abs(msg.yaw)) <= _ANGLE_MAX
     return True
 
+
+def _around(samples, t: int, hold_ns: int):
+    """(s0, s1, a): the time-ordered samples around time ``t`` (ns) and the weight of s1; the
+    nearest one twice (a = 0) when ``t`` is outside them by at most ``hold_ns``; None beyond."""
+    i = bisect.bisect_left([s[0] for s in samples], t)
+    if i == 0 or i == len(samples):
+        nearest = samples[0] if i == 0 else samples[-1]
+        return None if abs(t - nearest[0]) > hold_ns else (nearest, nearest, 0.0)
+    s0, s1 = samples[i - 1], samples[i]
+    return s0, s1, (t - s0[0]) / float(s1[0] - s0[0]) if s1[0] > s0[0] else 0.0
