@@ -1,8 +1,9 @@
 """``glad-payload run``: the long-lived service loop.
 
-source -> GLAD -> bearing -> MAVLink, always on the newest frame. The loop never blocks on
-the camera or the link: a lost camera is reconnected by its source (read() returns None
-meanwhile), a lost autopilot by the link thread. systemd hears READY=1 once the models are
+The newest frame goes through the frame step (payload.step: GLAD -> bearing -> MAVLink ->
+records), one at a time. The loop never blocks on the camera or the link: a lost camera is
+reconnected by its source (read() returns None meanwhile), a lost autopilot by the link thread,
+and the step only queues its messages for the link thread to write. systemd hears READY=1 once the models are
 loaded and the first frame arrived, WATCHDOG=1 only after frames that went all the way through
 (a stalled camera, a detector failing on every frame or a hung reload stop the pings), and a
 STATUS= line every summary interval. SIGHUP reloads the config: each component applies its own
