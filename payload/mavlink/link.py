@@ -257,10 +257,13 @@ class MavlinkLink:
             if "mavlink.heartbeat_hz" in changed:
                 self._next_hb_ns = 0  # the next one goes now, then at the new rate
             if "mavlink.attitude_rate_hz" in changed:
-                # ask again at the new rate (0: stop asking; the autopilot's own stream setting stays)
+                # ask again at the new rate (0: stop asking; the autopilot's own stream setting stays),
+                # now: an ATTITUDE of the old stream arriving first would count as the answer
                 self._att_requests = 0
                 self._att_acked = False
                 self._att_next_request_ns = 0
+                if self._ap_alive and self.cfg.attitude_rate_hz > 0:
+                    self._request_attitude(time.monotonic_ns())
             if "mavlink.timesync" in changed:
                 self.clock.forget_requests()
                 self._next_ts_ns = 0
@@ -334,6 +337,8 @@ class MavlinkLink:
 
     def _flush(self) -> None:
         """Write what the outbox holds, oldest first (the link thread only, without the lock)."""
+        if not len(self._outbox):
+            return
         for seq, msg, src_system in self._outbox.take():
             self._write(msg, src_system)
             if self.on_written is not None:
@@ -472,11 +477,16 @@ class MavlinkLink:
         conn = self._conn
         wake = self._outbox.fd
         readable, _, _ = select.select([conn.fd] if wake is None else [conn.fd, wake], [], [], 0.02)
+        if wake is not None and wake in readable:
+            self._outbox.clear_wake()
         self._flush()
         if conn.fd in readable:
             # bounded per call (64 datagrams or 4 KiB), so periodic work keeps its schedule under a flood;
             # the lock is taken per message, so a frame queuing its messages waits for one at most
             for source, msg in conn.recv_msgs():
+                if msg.get_type() == "BAD_DATA":  # garbage touches nothing other threads read: no lock
+                    self._bad_data(msg)
+                    continue
                 with self._lock:
                     self._handle(msg, source)
             with self._lock:
@@ -538,10 +548,7 @@ class MavlinkLink:
     def _handle(self, msg: Any, source: Any = None) -> None:
         kind = msg.get_type()
         if kind == "BAD_DATA":
-            if msg.reason == "Invalid signature":
-                data = bytes(msg.get_msgbuf())
-                sysid = data[5] if len(data) > 5 and data[0] == _M.PROTOCOL_MARKER_V2 else -1
-                self._log_rejected(sysid, "rejected packet from sysid=%d: missing or bad signature", sysid)
+            self._bad_data(msg)
             return
         if not _finite(msg):
             self._nonfinite += 1
@@ -584,6 +591,12 @@ class MavlinkLink:
             log.log(level, "ATTITUDE request answered: result=%d", msg.result)
             if not self._att_acked:
                 self._att_requests = _ATTITUDE_MAX_TRIES  # refused: do not insist
+
+    def _bad_data(self, msg: Any) -> None:
+        if msg.reason == "Invalid signature":
+            data = bytes(msg.get_msgbuf())
+            sysid = data[5] if len(data) > 5 and data[0] == _M.PROTOCOL_MARKER_V2 else -1
+            self._log_rejected(sysid, "rejected packet from sysid=%d: missing or bad signature", sysid)
 
     def _on_heartbeat(self, msg: Any, src: Tuple[int, int], now_ns: int, source: Any) -> None:
         if msg.autopilot == _M.MAV_AUTOPILOT_INVALID:

@@ -52,14 +52,17 @@ class Outbox:
             except OSError:
                 pass  # the pipe is full of wake-ups already, or closed at shutdown
 
-    def take(self) -> List[Item]:
-        """Everything waiting, oldest first; the queue is left empty."""
+    def clear_wake(self) -> None:
+        """Empty the wake-up pipe (before ``take``, so that a put after it wakes the thread again)."""
         if self._wake_r is not None:
             try:
                 while os.read(self._wake_r, 4096):
                     pass
             except OSError:
                 pass  # nothing left to read
+
+    def take(self) -> List[Item]:
+        """Everything waiting, oldest first; the queue is left empty."""
         with self._lock:
             items = list(self._items)
             self._items.clear()
