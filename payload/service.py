@@ -1,8 +1,9 @@
 """``glad-payload run``: the long-lived service loop.
 
-source -> GLAD -> bearing -> MAVLink, always on the newest frame. The loop never blocks on
-the camera or the link: a lost camera is reconnected by its source (read() returns None
-meanwhile), a lost autopilot by the link thread. systemd hears READY=1 once the models are
+The newest frame goes through the frame step (payload.step: GLAD -> bearing -> MAVLink ->
+records), one at a time. The loop never blocks on the camera or the link: a lost camera is
+reconnected by its source (read() returns None meanwhile), a lost autopilot by the link thread,
+and the step only queues its messages for the link thread to write. systemd hears READY=1 once the models are
 loaded and the first frame arrived, WATCHDOG=1 only after frames that went all the way through
 (a stalled camera, a detector failing on every frame or a hung reload stop the pings), and a
 STATUS= line every summary interval. SIGHUP reloads the config: each component applies its own
@@ -37,10 +38,11 @@ from payload.config import (
 )
 from payload.detect.pipeline import Glad, GladResult
 from payload.errors import ConfigError
-from payload.geometry import Attitude, BearingModel, GeoModel, TargetGeo
-from payload.records import DECISION_FIELDS, HEADER, CsvLog, decision_row, detection_rows
+from payload.geometry import BearingModel, GeoModel
+from payload.records import DECISION_FIELDS, HEADER, CsvLog
 from payload.sdnotify import Notifier
-from payload.types import Bearing, Frame
+from payload.step import FrameStep, state_text
+from payload.types import Frame
 from payload.video import StreamDescription
 
 log = logging.getLogger(__name__)
@@ -80,6 +82,7 @@ class Service:
         self.camera = None  # payload.mavlink.camera.CameraProtocol
         self.source: Optional[FrameSource] = None
         self.glad: Optional[Glad] = None
+        self.step: Optional[FrameStep] = None  # built by _start from the parts that run
         self._detections_csv: Optional[CsvLog] = None
         self._decisions_csv: Optional[CsvLog] = None
         self.video = None  # payload.video.output.VideoOutput while video or recording runs
@@ -130,6 +133,8 @@ class Service:
             self._decisions_csv = CsvLog(os.path.join(out.directory, "decisions.csv"), DECISION_FIELDS,
                                          out.max_file_bytes, out.keep_files)
         self.notifier.status("opening %s" % cfg.capture.source)
+        self.step = FrameStep(self.glad, self.bearings, self.geo, self.link, self.publisher, self.camera,
+                              self._detections_csv, self._decisions_csv, self.video)
         self.source = open_source(cfg.capture)
         self.source.open()
         log.info("started source=%s mavlink=%s outputs=%s", cfg.capture.source,
@@ -182,42 +187,21 @@ class Service:
             self.notifier.ready()
             self._ready_sent = True
             log.info("ready first_frame=%d size=%dx%d", frame.index, *frame.size_wh)
-        if self.link is not None and not self.link.detection_enabled:
-            if self.camera is not None:
-                self.camera.cancel("detection disabled by command")
-            self.stats.skipped += 1
-            self.stats.interval_frames += 1
-            if self.video is not None:
-                self.video.submit(frame, None, "detection off")  # the operator still sees the camera
-            self._watchdog()  # paused by command, and alive
-            return
         try:
-            if self.camera is not None:
-                self._designation(frame)
-            result = self.glad.process(frame)
-            if self.camera is not None and self.camera.confirming:
-                if self.camera.after_frame(result.target is not None and result.target.measured) is False:
-                    self.glad.release()
-            attitude = self._attitude(frame, result)
-            bearing = self._bearing(frame, result, attitude)
-            geo = self._geo(frame, result, attitude)
-            sent = 0
-            if self.publisher is not None:
-                sent = self.publisher.publish(result.target, bearing, frame.size_wh, geo)
-            if self._detections_csv is not None:
-                self._detections_csv.write_rows(detection_rows(frame.index, result.detections))
-            if self._decisions_csv is not None:
-                self._decisions_csv.write_rows([decision_row(frame, result, bearing, sent)])
-            if self.video is not None:
-                self.video.submit(frame, result, self._state(result))
-            if self.on_result is not None:
-                self.on_result(frame, result)
+            outcome = self.step(frame)
+            if outcome.result is not None and self.on_result is not None:
+                self.on_result(frame, outcome.result)
         except Exception as exc:  # one bad frame must not take the payload down; count and go on
             self._fault(frame, exc)
             return
+        result = outcome.result
+        self.stats.interval_frames += 1
+        if result is None:  # detection disabled by command: paused, and alive
+            self.stats.skipped += 1
+            self._watchdog()
+            return
         self._last_result = result
         self.stats.frames += 1
-        self.stats.interval_frames += 1
         self.stats.hits += bool(result.target is not None and result.target.measured)
         self._watchdog()  # only a frame that went all the way through says we are alive
 
@@ -237,34 +221,6 @@ class Service:
         self._faults_reported = self.stats.faults
         self._fault_report_s = now
 
-    def _designation(self, frame: Frame) -> None:
-        """An operator's track point or stop from the camera protocol, taken at the start of a frame
-        (commands arrive on the link thread; GLAD is only touched here)."""
-        self.camera.set_image_size(frame.size_wh)
-        request = self.camera.take()
-        if request is None:
-            return
-        if request.stop:
-            self.glad.release()
-        else:
-            self.glad.designate(request.center_px(frame.size_wh), request.size_px(frame.size_wh))
-
-    def _attitude(self, frame: Frame, result: GladResult) -> Optional[Attitude]:
-        if result.target is None or self.link is None:
-            return None
-        # The link drops non-finite ATTITUDE at the door; the bearing model still refuses a non-finite result.
-        return self.link.attitude_at(frame.t_capture_ns)
-
-    def _bearing(self, frame: Frame, result: GladResult, attitude: Optional[Attitude]) -> Optional[Bearing]:
-        if result.target is None:
-            return None
-        return self.bearings.bearing(result.target, frame.size_wh, attitude)
-
-    def _geo(self, frame: Frame, result: GladResult, attitude: Optional[Attitude]) -> Optional[TargetGeo]:
-        if result.target is None or self.link is None or not self.geo.enabled:
-            return None
-        return self.geo.locate(result.target, frame.size_wh, attitude, self.link.position_at(frame.t_capture_ns))
-
     def _watchdog(self) -> None:
         interval = self.notifier.watchdog_interval_s
         now = time.monotonic()
@@ -278,10 +234,8 @@ class Service:
         """The live video as served (for VIDEO_STREAM_INFORMATION), or None when there is none."""
         return self.video.description if self.video is not None else None
 
-    def _state(self, result: Optional[GladResult] = None) -> str:
-        r = result if result is not None else self._last_result
-        state = "searching" if r is None else r.state
-        return state + ",designated" if self.glad is not None and self.glad.designated else state
+    def _state(self) -> str:
+        return state_text(self._last_result, self.glad is not None and self.glad.designated)
 
     def _maybe_summary(self) -> None:
         if time.monotonic() - self.stats.interval_start_s >= self.cfg.logging.summary_interval_s:

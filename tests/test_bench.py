@@ -153,6 +153,35 @@ def test_bench_command_prints_and_writes_every_section(synth, tmp_path, capsys):
         assert 2 * CLIP_FRAMES - 2 <= report["stream_frames"] + report["stream_dropped"] <= 2 * CLIP_FRAMES
 
 
+def test_paced_bench_plays_the_clip_as_a_camera_and_accounts_for_every_frame(synth, tmp_path, capsys):
+    """``--paced``: the clip at camera rate on its own thread; every frame of it is processed,
+    dropped (the loop was busy when the next came) or late (decoding fell behind); each processed
+    frame's latency runs from its capture stamp to the link thread's write (no timing asserted)."""
+    _, config_path, clip = synth
+    out = tmp_path / "paced.json"
+    assert main(["bench", clip.video, "-c", config_path, "--paced", "30", "--no-stream", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    report = json.loads(out.read_text())
+    assert report["paced_fps"] == 30
+    assert report["frames"] + report["frames_dropped"] + report["frames_late"] == CLIP_FRAMES
+    assert report["frames"] >= 1 and "paced at 30 fps: frames processed %d, dropped %d" % (
+        report["frames"], report["frames_dropped"]) in text
+    assert 0 < report["latency_p50_ms"] <= report["latency_p99_ms"] <= report["latency_max_ms"]
+    assert "from the capture stamp" in text
+    modules = {m["name"]: m for m in report["modules"]}
+    assert "decode" not in modules and modules["wait"]["runs"] == modules["mavlink"]["runs"] == report["frames"]
+    for m in modules.values():
+        assert 0 <= m["median_ms"] <= m["p95_ms"] <= m["p99_ms"]
+    assert report["messages_received"] == report["messages_sent"] > 0
+
+
+def test_paced_bench_refuses_a_rate_that_is_not_positive(synth, capsys):
+    _, config_path, clip = synth
+    assert main(["bench", clip.video, "-c", config_path, "--paced", "-5", "--no-stream"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--paced -5" in err[0]
+
+
 def test_bench_ablation_command_prints_each_row(synth, capsys, tmp_path):
     _, config_path, clip = synth
     out = tmp_path / "ablation.json"

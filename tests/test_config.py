@@ -78,14 +78,20 @@ def test_paper_parameters_defaults():
     assert c.switcher.max_local_misses == 10  # measured deviation from the paper's 30 (payload/config.py)
 
 
-@pytest.mark.parametrize("text,expected", BROKEN)
-def test_broken_config_gives_one_line(tmp_path, text, expected):
+def problems_loading(tmp_path, content):
+    """(path, the problems ConfigError lists) for a config file holding ``content`` (bytes or text)."""
     path = tmp_path / "bad.yaml"
-    path.write_text(text)
+    (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
     with pytest.raises(ConfigError) as info:
         load_config(str(path))
-    assert len(info.value.problems) == 1
-    line = info.value.problems[0]
+    return path, info.value.problems
+
+
+@pytest.mark.parametrize("text,expected", BROKEN)
+def test_broken_config_gives_one_line(tmp_path, text, expected):
+    path, problems = problems_loading(tmp_path, text)
+    assert len(problems) == 1
+    line = problems[0]
     assert "\n" not in line
     assert line.startswith(str(path) + ":")
     assert line.split(": ", 1)[1] == expected
@@ -170,11 +176,8 @@ BAD_INPUT = [
 
 @pytest.mark.parametrize("content,expected", BAD_INPUT)
 def test_bad_input_is_one_line(tmp_path, content, expected):
-    path = tmp_path / "bad.yaml"
-    path.write_bytes(content)
-    with pytest.raises(ConfigError) as info:
-        load_config(str(path))
-    assert info.value.problems == [str(path) + expected]
+    path, problems = problems_loading(tmp_path, content)
+    assert problems == [str(path) + expected]
 
 
 def test_file_over_1_mib_is_refused_unread(tmp_path):

@@ -232,6 +232,16 @@ def test_halmstad_csv_is_one_based_and_counts_only_drones(tmp_path):
     assert len(everything[0]) == 2
 
 
+def labels_as(path, fmt, frames):
+    """The labels of ``path``, checked: its format detected as ``fmt``, boxes on ``frames`` (0-based),
+    the first one at (10, 20, 40, 35) in 0-based exclusive pixels."""
+    assert detect_format(str(path)) == fmt
+    labels = load_labels(str(path))
+    assert sorted(labels) == frames
+    np.testing.assert_allclose(labels[0], [[10, 20, 40, 35]])
+    return labels
+
+
 def test_voc_folder_frame_from_one_based_file_name(tmp_path):
     folder = tmp_path / "phantom16"
     folder.mkdir()
@@ -245,10 +255,7 @@ def test_voc_folder_frame_from_one_based_file_name(tmp_path):
     (folder / "phantom16_0005.xml").write_text(xml.format(name="phantom16_0005", objects=""))
     (folder / "phantom16_0006.xml").write_text(
         xml.format(name="phantom16_0006", objects=obj.format(cls="bird", x1=1, y1=1, x2=5, y2=5)))
-    assert detect_format(str(folder)) == "voc"
-    labels = load_labels(str(folder))
-    assert sorted(labels) == [0, 4, 5]
-    np.testing.assert_allclose(labels[0], [[10, 20, 40, 35]])  # 1-based inclusive -> 0-based exclusive
+    labels = labels_as(folder, "voc", [0, 4, 5])  # 1-based inclusive -> 0-based exclusive
     assert labels[4].shape == (0, 4) and labels[5].shape == (0, 4)
     (folder / "phantom16_0007.xml").write_text("<annotation><object>")
     with pytest.raises(DataError, match="phantom16_0007.xml:1: not valid XML"):
@@ -258,10 +265,7 @@ def test_voc_folder_frame_from_one_based_file_name(tmp_path):
 def test_mot_gt_txt(tmp_path):
     path = tmp_path / "gt.txt"
     path.write_text("1,1,10,20,30,15,1,1,1.0\n1,2,50,50,5,5,0,1,1.0\n3,1,12,22,30,15,1,1,0.8\n")
-    assert detect_format(str(path)) == "mot"
-    labels = load_labels(str(path))
-    assert sorted(labels) == [0, 2]
-    np.testing.assert_allclose(labels[0], [[10, 20, 40, 35]])  # the conf-0 row is an ignore region
+    labels = labels_as(path, "mot", [0, 2])  # the conf-0 row is an ignore region
     np.testing.assert_allclose(labels[2], [[12, 22, 42, 37]])
     path.write_text("0,1,10,20,30,15,1\n")
     with pytest.raises(DataError, match=r"gt.txt:1: frame=0, expected >= 1"):
@@ -271,10 +275,7 @@ def test_mot_gt_txt(tmp_path):
 def test_plain_text_one_line_per_frame(tmp_path):
     path = tmp_path / "groundtruth_rect.txt"
     path.write_text("10 20 30 15\n\n0 0 0 0\nNaN NaN NaN NaN\n12,22,30,15\n")
-    assert detect_format(str(path)) == "txt"
-    labels = load_labels(str(path))
-    assert sorted(labels) == [0, 1, 2, 3, 4]
-    np.testing.assert_allclose(labels[0], [[10, 20, 40, 35]])
+    labels = labels_as(path, "txt", [0, 1, 2, 3, 4])
     assert [len(labels[i]) for i in range(5)] == [1, 0, 0, 0, 1]
     np.testing.assert_allclose(labels[4], [[12, 22, 42, 37]])
 

@@ -155,6 +155,27 @@ def link_cfg(connection, **kw):
     return MavlinkConfig(**base)
 
 
+def synced(link, through="", heartbeat_s=10.0):
+    """Wait for the autopilot, TIMESYNC and 3 s of attitude (and half a second of the payload's
+    messages); returns the monotonic time TIMESYNC was reached."""
+    wait_for(lambda: link.status.autopilot_seen, heartbeat_s, "autopilot heartbeat" + through)
+    wait_for(lambda: link.status.time_synced, 10.0, "TIMESYNC" + through)
+    t_synced = time.monotonic()
+    wait_for(lambda: link.attitude_at(time.monotonic_ns() - 3_000_000_000), 10.0, "3 s of attitude" + through)
+    time.sleep(0.5)
+    return t_synced
+
+
+def signed_fake(fakes, tmp_path, **kw):
+    """(fake autopilot, link) sharing a fresh signing key; the link is not started."""
+    key = tmp_path / "mavlink.key"
+    key.write_text(os.urandom(32).hex())
+    port = free_port()
+    fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}", "--signing-key", str(key))
+    return fake, MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}", signing={"enabled": True, "key_file": str(key)},
+                                      **kw))
+
+
 def start_fake(fakes, tmp_path, listen, *extra, name="fake"):
     f = FakeAutopilot(tmp_path, listen, *extra, name=name)
     fakes.append(f)
@@ -277,13 +298,7 @@ def test_link_with_fake_autopilot_udp(fakes, tmp_path):
     t0 = time.monotonic()
     link = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}"))
     with link, Payload(link, link.cfg.outputs) as payload:
-        wait_for(lambda: link.status.autopilot_seen, 10.0, "autopilot heartbeat")
-        wait_for(lambda: link.status.time_synced, 10.0, "TIMESYNC")
-        t_synced = time.monotonic()
-        wait_for(lambda: link.attitude_at(time.monotonic_ns() - 3_000_000_000),
-                 10.0, "3 s of attitude")
-        time.sleep(0.5)
-        check_exchange(fake, link, payload, t0, t_synced)
+        check_exchange(fake, link, payload, t0, synced(link))
 
         # disable: ACKed, then no target message until enable
         fake.command("disable")
@@ -396,11 +411,7 @@ def test_outputs_landing_target_level_frame_and_rate_cap(fakes, tmp_path, caplog
 
 
 def test_signed_link(fakes, tmp_path):
-    key = tmp_path / "mavlink.key"
-    key.write_text(os.urandom(32).hex())
-    port = free_port()
-    fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}", "--signing-key", str(key))
-    link = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}", signing={"enabled": True, "key_file": str(key)}))
+    fake, link = signed_fake(fakes, tmp_path)
     with link, Payload(link, link.cfg.outputs):
         wait_for(lambda: link.status.autopilot_seen and link.status.time_synced, 10.0, "signed autopilot")
         wait_for(lambda: len(fake.rows("DEBUG_VECT")) > 3, 5.0, "signed target messages")
@@ -416,7 +427,7 @@ def test_signed_link(fakes, tmp_path):
     # an unsigned peer is not heard by a signed link
     port2 = free_port()
     plain = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port2}", name="plain")
-    link2 = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port2}", signing={"enabled": True, "key_file": str(key)}))
+    link2 = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port2}", signing=link.cfg.signing))
     with link2:
         wait_for(lambda: plain.rows("HEARTBEAT"), 5.0, "our heartbeat at the unsigned fake")
         time.sleep(1.5)
@@ -438,13 +449,7 @@ def test_link_through_mavproxy(fakes, tmp_path, mavproxy_script):
         t0 = time.monotonic()
         link = MavlinkLink(link_cfg(f"udpin:127.0.0.1:{port_out}"))
         with link, Payload(link, link.cfg.outputs) as payload:
-            wait_for(lambda: link.status.autopilot_seen, 20.0, "autopilot heartbeat through MAVProxy")
-            wait_for(lambda: link.status.time_synced, 10.0, "TIMESYNC through MAVProxy")
-            t_synced = time.monotonic()
-            wait_for(lambda: link.attitude_at(time.monotonic_ns() - 3_000_000_000),
-                     10.0, "3 s of attitude through MAVProxy")
-            time.sleep(0.5)
-            check_exchange(fake, link, payload, t0, t_synced)
+            check_exchange(fake, link, payload, t0, synced(link, " through MAVProxy", heartbeat_s=20.0))
             fake.command("disable")
             assert wait_for(lambda: fake.acks(CMD_USER_1), 5.0, "ACK through MAVProxy")[0]["fields"]["result"] == ACCEPTED
             assert not link.detection_enabled

@@ -502,3 +502,49 @@ def test_broken_signing_state_is_one_warning_and_the_link_runs(fakes, tmp_path, 
     assert len(lines) == 1 and "cannot read" in lines[0] and "mavlink.key.state" in lines[0], lines
     # rewritten whole by the accepted command
     assert json.loads((tmp_path / "mavlink.key.state").read_text())["streams"]
+
+
+def test_a_radio_that_stops_taking_bytes_never_stalls_the_frame_step(caplog):
+    """Issue 19: MAVLink sends are off the detection path. A serial link whose far end stops
+    reading (a pseudo-terminal nobody reads: its buffer fills, then every write waits out
+    pyserial's 0.5 s write timeout) stalls the link thread; the frame step only queues its
+    messages, so it keeps its pace. Sending from the step, as before, a frame waited 0.5 s."""
+    pytest.importorskip("serial")
+    import numpy as np
+
+    from payload.bench.runners import DetectorRun
+    from payload.config import CameraConfig, MavlinkOutputsConfig
+    from payload.geometry import BearingModel
+    from payload.mavlink.outputs import TargetPublisher
+    from payload.step import FrameStep
+    from payload.types import Detections, Frame
+
+    master, slave = os.openpty()
+    box = Detections(np.array([[20.0, 10.0, 30.0, 18.0]]), np.array([0.9]), "LAD")
+    detector = DetectorRun(lambda image: box, "LAD", [])
+    link = MavlinkLink(link_cfg(os.ttyname(slave), baud=921600, timesync=False, attitude_rate_hz=0.0))
+    step = FrameStep(detector, BearingModel(CameraConfig()), link=link,
+                     publisher=TargetPublisher(link, MavlinkOutputsConfig()))
+    image = np.zeros((48, 64, 3), np.uint8)
+    longest_s, frames = 0.0, 0
+    try:
+        with caplog.at_level("WARNING", logger="payload.mavlink.link"), link:
+            wait_for(lambda: link.status.connected, 5.0, "serial port open")
+            t_end = time.monotonic() + 3.0
+            while time.monotonic() < t_end:
+                t0 = time.monotonic()
+                outcome = step(Frame(image=image, index=frames, t_capture_ns=time.monotonic_ns(),
+                                     t_wall_ns=time.time_ns()))
+                longest_s = max(longest_s, time.monotonic() - t0)
+                assert outcome.result.target is not None
+                frames += 1
+                time.sleep(0.004)
+            st = link.status
+    finally:
+        os.close(master)
+        os.close(slave)
+    stalled = [r for r in caplog.records if "mavlink write failed" in r.getMessage()]
+    # the attack worked: the link thread's writes timed out (0.5 s each) and the messages behind them were dropped
+    assert stalled and st.dropped > 0, (len(stalled), st)
+    # ... while no frame waited for it: the longest step is far below one write timeout
+    assert longest_s < 0.25, "a frame step took %.3f s while the link was blocked" % longest_s

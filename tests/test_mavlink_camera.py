@@ -4,12 +4,11 @@ ground station (system 255) sending the commands. The detection loop's side of a
 (take / after_frame) is driven by the test, as the service does it each frame."""
 
 import math
-import os
 import time
 
 import numpy as np
 import pytest
-from test_mavlink import Payload, free_port, link_cfg, start_fake, wait_for
+from test_mavlink import Payload, free_port, link_cfg, signed_fake, start_fake, wait_for
 
 from payload.config import Config, config_with
 from payload.geometry import (
@@ -319,11 +318,7 @@ def test_position_stream_and_geo_messages(fakes, tmp_path):
 
 
 def test_signing_rules_hold_for_camera_commands(fakes, tmp_path):
-    key = tmp_path / "key.hex"
-    key.write_text(os.urandom(32).hex())
-    port = free_port()
-    fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}", "--signing-key", str(key))
-    link = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}", signing={"enabled": True, "key_file": str(key)}))
+    fake, link = signed_fake(fakes, tmp_path)
     camera = CameraProtocol(link, camera_config(), None)
     with link:
         wait_for(lambda: link.status.autopilot_seen, 10.0, "signed autopilot")

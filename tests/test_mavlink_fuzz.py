@@ -76,6 +76,7 @@ def feed(link, datagram, addr=None):
         for src, msg in link._conn.messages_from(datagram, addr or link.sink):
             link._handle(msg, src)
         link._periodic(time.monotonic_ns())
+    link._flush()  # what the link thread writes after each pass
 
 
 def pack(msg, sysid, compid, key=None, link_id=0, timestamp=0):
@@ -90,9 +91,9 @@ def pack(msg, sysid, compid, key=None, link_id=0, timestamp=0):
 
 def check_state(link):
     """Nothing non-finite in the attitude or time state; what the service asks of it is finite."""
-    for sample in link._att:
+    for sample in link.poses.attitudes():
         assert all(math.isfinite(v) for v in sample[1:]), sample
-    offset, _ = link._offset()
+    offset, _ = link.clock.offset()
     assert offset is None or isinstance(offset, int)
     now = time.monotonic_ns()
     for t in (now, now - 50_000_000, now + 50_000_000):

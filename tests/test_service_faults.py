@@ -81,6 +81,16 @@ def watchdog_env(tmp_path, usec=1_000_000):
     return NotifyListener(sock), {"NOTIFY_SOCKET": sock, "WATCHDOG_USEC": str(usec)}
 
 
+def run_watched(tmp_path, cfg):
+    """``glad-payload run`` on ``cfg`` (written to payload.yaml) with a systemd notify socket and
+    watchdog: (config path, log path, notify listener, process)."""
+    cfg_path = tmp_path / "payload.yaml"
+    write(cfg_path, cfg)
+    listener, env = watchdog_env(tmp_path)
+    log_path = tmp_path / "payload.log"
+    return cfg_path, log_path, listener, start(["run", "--config", str(cfg_path)], log_path, env=env)
+
+
 def ping_times(listener, since=0.0):
     return [t for t, m in listener.messages if m == "WATCHDOG=1" and t >= since]
 
@@ -227,11 +237,7 @@ BOMB = "\n".join(["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
 
 
 def test_bad_config_files_on_sighup_keep_the_service_and_its_watchdog_running(tmp_path):
-    cfg_path = tmp_path / "payload.yaml"
-    write(cfg_path, base_config())
-    listener, env = watchdog_env(tmp_path)
-    log_path = tmp_path / "payload.log"
-    proc = start(["run", "--config", str(cfg_path)], log_path, env=env)
+    cfg_path, log_path, listener, proc = run_watched(tmp_path, base_config())
     bad = [
         (b"logging:\n  level: \xff\xfeINFO\n", "not UTF-8 text (byte 0xff at offset 18)"),
         (BOMB.encode(), "holds more than 20000 values once its aliases"),
@@ -475,11 +481,8 @@ def test_model_with_fixed_100x100_input_is_one_line_at_start(tmp_path):
 
 def test_no_watchdog_ping_while_every_frame_faults(tmp_path):
     model = failing_detector(tmp_path / "failing.onnx")
-    cfg_path = tmp_path / "payload.yaml"
-    write(cfg_path, base_config(detector={"global": {"appearance": {"model": model}}}))
-    listener, env = watchdog_env(tmp_path)
-    log_path = tmp_path / "payload.log"
-    proc = start(["run", "--config", str(cfg_path)], log_path, env=env)
+    cfg = base_config(detector={"global": {"appearance": {"model": model}}})
+    cfg_path, log_path, listener, proc = run_watched(tmp_path, cfg)
     try:
         listener.wait_for("READY=1", 120)
         listener.drain(4.0)
@@ -502,11 +505,8 @@ def test_watchdog_pings_stop_while_capture_stalls(tmp_path):
         cv2.imwrite(str(frames / ("%04d.png" % i)), np.full((90, 160, 3), i * 4, np.uint8))
     os.remove(str(frames / "0030.png"))
     os.mkfifo(str(frames / "0030.png"))  # reading it blocks until someone writes: a stalled camera
-    cfg_path = tmp_path / "payload.yaml"
-    write(cfg_path, base_config(capture={"source": "folder", "path": str(frames), "pace": True, "fps": 10.0}))
-    listener, env = watchdog_env(tmp_path)
-    log_path = tmp_path / "payload.log"
-    proc = start(["run", "--config", str(cfg_path)], log_path, env=env)
+    cfg = base_config(capture={"source": "folder", "path": str(frames), "pace": True, "fps": 10.0})
+    cfg_path, log_path, listener, proc = run_watched(tmp_path, cfg)
     try:
         listener.wait_for("READY=1", 120)
         # frames read up to the FIFO, processed or (a loaded machine) dropped as stale by the paced source
@@ -524,11 +524,7 @@ def test_watchdog_pings_stop_while_capture_stalls(tmp_path):
 
 
 def test_watchdog_pings_stop_while_reload_hangs_and_resume_after(tmp_path):
-    cfg_path = tmp_path / "payload.yaml"
-    write(cfg_path, base_config())
-    listener, env = watchdog_env(tmp_path)
-    log_path = tmp_path / "payload.log"
-    proc = start(["run", "--config", str(cfg_path)], log_path, env=env)
+    cfg_path, log_path, listener, proc = run_watched(tmp_path, base_config())
     try:
         listener.wait_for("READY=1", 120)
         listener.drain(1.0)

@@ -208,7 +208,7 @@ def test_the_stream_shows_the_target_box_where_glad_put_it(gst):
         while len(receiver.frames) < 10 and time.monotonic() < deadline:
             target = Target(i, 0, box.copy(), 0.9, "GAD", measured=True)
             result = GladResult(i, 0, "global", dets, dets, target, None)
-            out.submit(frame(i, np.zeros((480, 640, 3), np.uint8)), result, "tracking")
+            out.submit(frame(i, np.zeros((480, 640, 3), np.uint8)), result, "detected")
             i += 1
             time.sleep(1 / 30.0)
         img = receiver.frames[-1]
@@ -488,8 +488,8 @@ def test_without_pygobject_video_is_one_line_and_detection_goes_on(tmp_path):
     lines = [line for line in proc.stderr.splitlines() if " WARNING " in line or " ERROR " in line]
     assert len(lines) == 1, lines
     assert lines[0].endswith("video and recording off: GStreamer is not usable from Python (import of gi halted; "
-                             "None in sys.modules): install the gstreamer extra (PyGObject) and gir1.2-gstreamer-1.0; "
-                             "detection goes on"), lines[0]
+                             "None in sys.modules): install the gstreamer extra (PyGObject), gir1.2-gstreamer-1.0 and "
+                             "gir1.2-gst-plugins-base-1.0; detection goes on"), lines[0]
     assert " frames=20 " in proc.stderr.splitlines()[-1]
     assert not os.path.exists(str(tmp_path / "rec"))
 

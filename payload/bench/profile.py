@@ -3,9 +3,9 @@
 Two passes over the same frames:
 
 1. decode only: the source read as fast as it goes (the ceiling for end-to-end FPS);
-2. the payload loop: read -> runner.process -> bearing -> TargetPublisher over a real
-   MavlinkLink (``udpout``) to a UDP socket on 127.0.0.1 that the bench itself opens and
-   drains, counting the MAVLink messages that arrive.
+2. the payload loop: read, then the service's frame step (payload.step: runner.process ->
+   bearing -> TargetPublisher over a real MavlinkLink (``udpout``) to a UDP socket on 127.0.0.1
+   that the bench itself opens and drains, counting the MAVLink messages that arrive).
 
 3. with ``stream``: the payload loop three times more, with the live video on, off, on
    (payload.video: the RTSP server with a real rtspsrc client connected, so every frame is drawn
@@ -13,11 +13,16 @@ Two passes over the same frames:
    service does). The detection loop's FPS with the stream off and on are each the best of two
    alternating passes: on a shared machine one pass's FPS moves by tens of percent with the load.
 
-Latency of a frame runs from the moment it is asked of the source (so decoding counts, as
-the camera's own delivery would) to the return of the publish call that handed its messages
-to the socket. Frames are not paced: each is read as soon as the previous one is sent.
+Unpaced, each frame is read as soon as the previous one went through, and its latency runs from
+the moment it is asked of the source (so decoding counts, as the camera's own delivery would).
+With ``paced_fps`` the clip plays as a camera at that rate instead (payload.capture.paced:
+decoded on its own thread, newest frame wins): frames the loop misses are dropped and counted,
+and latency runs from the frame's capture stamp. Either way it ends when the link thread has
+written the frame's last message to the socket (``MavlinkLink.on_written``), or, for a frame
+that sends nothing, when its step returns.
 """
 
+import bisect
 import logging
 import os
 import socket
@@ -30,15 +35,17 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from payload.capture import EndOfStream, open_source
+from payload.capture.paced import PacedRecording
 from payload.config import Config
 from payload.errors import SourceError
-from payload.geometry import CameraModel, bearing_for, mount_from_config
+from payload.geometry import BearingModel, GeoModel
 from payload.offline import recording_config
+from payload.step import FrameStep
 
 log = logging.getLogger(__name__)
 
 #: Report order of the modules (others, e.g. a baseline's, follow in the order met).
-MODULE_ORDER = ("decode", "grey", "GAD", "scan", "GMD", "classifier", "region", "LAD", "LMD", "switcher", "tiled",
+MODULE_ORDER = ("decode", "wait", "grey", "GAD", "scan", "GMD", "classifier", "region", "LAD", "LMD", "switcher", "tiled",
                 "bearing", "mavlink")
 _LINK_WAIT_S = 5.0
 _DRAIN_S = 0.3
@@ -56,10 +63,11 @@ class ModuleTime:
     median_ms: float
     p95_ms: float
     mean_ms: float
+    p99_ms: float = float("nan")
 
     def as_dict(self) -> Dict[str, object]:
         return {"name": self.name, "runs": self.runs, "share": self.share, "median_ms": self.median_ms,
-                "p95_ms": self.p95_ms, "mean_ms": self.mean_ms}
+                "p95_ms": self.p95_ms, "p99_ms": self.p99_ms, "mean_ms": self.mean_ms}
 
 
 @dataclass(frozen=True)
@@ -89,6 +97,9 @@ class BenchReport:
     stream: str = ""  # what pass 3 streamed, or why it did not run
     stream_frames: int = 0  # frames pass 3 queued for the stream's encoder
     stream_dropped: int = 0  # frames pass 3 dropped (video thread or encoder behind)
+    paced_fps: float = 0.0  # the camera rate the clip was played at (0: unpaced)
+    frames_dropped: int = 0  # paced: frames the loop did not take before the next one came
+    frames_late: int = 0  # paced: frames the source decoded too late for their slot (skipped)
 
     def module(self, name: str) -> Optional[ModuleTime]:
         return next((m for m in self.modules if m.name == name), None)
@@ -98,7 +109,7 @@ class BenchReport:
             "source", "runner", "frames", "fps_end_to_end", "fps_without_decode", "fps_decode_only",
             "decode_ratio", "latency_p50_ms", "latency_p99_ms", "latency_max_ms", "modes", "frames_with_target",
             "messages_sent", "messages_received", "providers", "threads", "cpu_count", "fps_stream_off", "fps_stream_on", "stream",
-            "stream_frames", "stream_dropped")}
+            "stream_frames", "stream_dropped", "paced_fps", "frames_dropped", "frames_late")}
         out["size_wh"] = list(self.size_wh)
         out["load_avg"] = list(self.load_avg)
         out["modules"] = [m.as_dict() for m in self.modules]
@@ -165,7 +176,7 @@ def _module_times(per_frame: List[Dict[str, float]]) -> List[ModuleTime]:
     for name in names:
         ms = np.array([t[name] for t in per_frame if name in t], np.float64)
         out.append(ModuleTime(name, int(len(ms)), len(ms) / float(len(per_frame)), float(np.median(ms)),
-                              float(np.percentile(ms, 95)), float(ms.mean())))
+                              float(np.percentile(ms, 95)), float(ms.mean()), float(np.percentile(ms, 99))))
     return out
 
 
@@ -182,18 +193,42 @@ class _Pass:
     sent: int = 0
     size_wh: Tuple[int, int] = (0, 0)
     elapsed_s: float = 0.0
+    dropped: int = 0
+    late: int = 0
 
 
-def _loop_pass(cfg: Config, capture, runner, link, publisher, frames: int, video=None) -> _Pass:
-    """One pass of the payload loop over the clip: read, detect, bearing, publish (, hand to video)."""
-    mount = mount_from_config(cfg.camera.mount)
-    camera = None
+class _WriteClock:
+    """When the link thread wrote (or dropped) each outbox message: (sequence number, monotonic ns)."""
+
+    def __init__(self, link) -> None:
+        self.written: List[Tuple[int, int]] = []
+        link.on_written = self._on_written
+
+    def _on_written(self, seq: int) -> None:
+        self.written.append((seq, time.monotonic_ns()))
+
+    def at(self, seq: int) -> Optional[int]:
+        """When message ``seq`` had left (messages leave in order), or None if it has not yet."""
+        i = bisect.bisect_left(self.written, (seq, -1))
+        return self.written[i][1] if i < len(self.written) else None
+
+
+def _loop_pass(cfg: Config, capture, runner, link, publisher, frames: int, video=None,
+               paced_fps: float = 0.0) -> _Pass:
+    """One pass of the payload loop over the clip: read, then the service's frame step (detect,
+    bearing, publish, hand to video); paced, the clip plays as a camera at ``paced_fps``."""
+    bearings = BearingModel(cfg.camera)
+    step = FrameStep(runner, bearings, GeoModel(cfg.target, bearings), link, publisher, video=video)
+    clock = _WriteClock(link)
     out = _Pass()
-    with open_source(capture) as frames_in:
+    ends: List[Tuple[int, int, int]] = []  # per frame: (start ns, end of step ns, last message queued or 0)
+    source = PacedRecording(capture.path, paced_fps) if paced_fps else open_source(capture)
+    with source as frames_in:
         runner.reset()
         t_start = time.perf_counter()
         while not frames or len(out.per_frame) < frames:
             t_ask = time.perf_counter()
+            t_ask_ns = time.monotonic_ns()
             try:
                 frame = frames_in.read(timeout_s=1.0)
             except EndOfStream:
@@ -201,30 +236,28 @@ def _loop_pass(cfg: Config, capture, runner, link, publisher, frames: int, video
             if frame is None:
                 continue
             t_decoded = time.perf_counter()
-            result = runner.process(frame)
-            t_detected = time.perf_counter()
-            bearing = None
-            if result.target is not None:
-                if camera is None or out.size_wh != frame.size_wh:
-                    out.size_wh = frame.size_wh
-                    camera = CameraModel.from_config(cfg.camera, out.size_wh)
-                bearing = bearing_for(result.target, camera, mount, link.attitude_at(frame.t_capture_ns))
-            t_bearing = time.perf_counter()
-            out.sent += publisher.publish(result.target, bearing, frame.size_wh)
-            t_sent = time.perf_counter()
-            if video is not None:
-                video.submit(frame, result, "searching" if result.target is None else "tracking")
-            timings = dict(result.timings_ms)
-            timings["decode"] = (t_decoded - t_ask) * 1000.0
-            if result.target is not None:
-                timings["bearing"] = (t_bearing - t_detected) * 1000.0
-            timings["mavlink"] = (t_sent - t_bearing) * 1000.0
+            outcome = step(frame)
+            ends.append((frame.t_capture_ns if paced_fps else t_ask_ns, time.monotonic_ns(),
+                         link.last_queued if outcome.sent else 0))
+            result = outcome.result
+            timings = dict(outcome.timings_ms)
+            # unpaced: the source decoding; paced: waiting for the camera's next frame (decoded on its thread)
+            timings["wait" if paced_fps else "decode"] = (t_decoded - t_ask) * 1000.0
             out.per_frame.append(timings)
-            out.latency_ms.append((t_sent - t_ask) * 1000.0)
             out.modes[result.mode] += 1
             out.with_target += bool(result.target is not None and result.target.measured)
+            out.sent += outcome.sent
             out.size_wh = frame.size_wh
         out.elapsed_s = time.perf_counter() - t_start
+        if paced_fps:
+            out.dropped, out.late = source.stats.dropped, source.late
+    deadline = time.monotonic() + _DRAIN_S  # the link thread writes the last frame's messages
+    while ends and ends[-1][2] and clock.at(ends[-1][2]) is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    link.on_written = None
+    for start_ns, step_ns, seq in ends:
+        sent_ns = clock.at(seq) if seq else None
+        out.latency_ms.append(((sent_ns if sent_ns is not None else step_ns) - start_ns) / 1e6)
     return out
 
 
@@ -260,9 +293,10 @@ def open_watched_stream(cfg: Config):
 
 
 def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frames: int = 0,
-              stream: bool = False) -> BenchReport:
+              stream: bool = False, paced_fps: float = 0.0) -> BenchReport:
     """Profile ``runner`` (see payload.bench.runners) on the video file or image folder ``source``;
-    with ``stream``, once more with the live video on."""
+    with ``stream``, once more with the live video on; with ``paced_fps``, played as a camera at
+    that rate."""
     from payload.bench.runners import onnx_sessions
     from payload.mavlink.link import MavlinkLink
     from payload.mavlink.outputs import TargetPublisher
@@ -279,7 +313,7 @@ def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frame
             while not link.status.connected and time.monotonic() < deadline:
                 time.sleep(0.01)
             publisher = TargetPublisher(link, cfg.mavlink.outputs)
-            off = _loop_pass(cfg, capture, runner, link, publisher, frames)
+            off = _loop_pass(cfg, capture, runner, link, publisher, frames, paced_fps=paced_fps)
             time.sleep(_DRAIN_S)  # the last datagrams of pass 2 are still in flight
             received = sink.non_heartbeat
             if stream:
@@ -289,9 +323,9 @@ def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frame
                 else:
                     video, client = watched
                     try:
-                        on.append(_loop_pass(cfg, capture, runner, link, publisher, frames, video=video))
-                        off_again.append(_loop_pass(cfg, capture, runner, link, publisher, frames))
-                        on.append(_loop_pass(cfg, capture, runner, link, publisher, frames, video=video))
+                        for video_on in (video, None, video):
+                            (on if video_on else off_again).append(
+                                _loop_pass(cfg, capture, runner, link, publisher, frames, video_on, paced_fps))
                         st = video.stats()
                         d = video.description
                         stream_text = "%s %dx%d %g fps %d kbit/s %s, %d client(s)" % (
@@ -307,7 +341,7 @@ def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frame
     if not per_frame:
         raise SourceError("bench %s: the source gave no frame" % source)
     n = len(per_frame)
-    decode_s = sum(t["decode"] for t in per_frame) / 1000.0
+    decode_s = sum(t.get("decode", t.get("wait", 0.0)) for t in per_frame) / 1000.0
     fps_e2e = n / off.elapsed_s
     providers = [m.providers[0] for m in onnx_sessions(runner)]
     return BenchReport(
@@ -321,4 +355,5 @@ def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frame
         fps_stream_off=max(_fps(p) for p in [off] + off_again) if on else float("nan"),
         fps_stream_on=max(_fps(p) for p in on) if on else float("nan"),
         stream=stream_text, stream_frames=stream_frames, stream_dropped=stream_dropped,
+        paced_fps=paced_fps, frames_dropped=off.dropped, frames_late=off.late,
     )

@@ -21,7 +21,6 @@ itself, appsink gets ``sync=false``: frames are handed over as soon as they exis
 
 import logging
 import re
-import threading
 from typing import Optional, Tuple
 
 import cv2
@@ -31,6 +30,7 @@ from payload.capture.base import EndOfStream, FrameSource, now_ns
 from payload.capture.live import Grabber, LiveReader
 from payload.config import Retry
 from payload.errors import CameraLost, SourceError
+from payload.gst import GstUnavailable, import_gst, one_line
 from payload.types import Frame
 
 log = logging.getLogger(__name__)
@@ -41,10 +41,6 @@ _FINAL_APPSINK = re.compile(r"!\s*(appsink\b[^!]*)$")
 _CODE_LOCATION = re.compile(r"\.c\(\d+\)")
 _SYNC_SET = re.compile(r"\bsync\s*=")
 _LIVE_SOURCES = re.compile(r"\b(v4l2src|nvarguscamerasrc|nvv4l2camerasrc|libcamerasrc|rtspsrc|udpsrc|souphttpsrc|is-live\s*=\s*(true|1))\b")
-
-_gst_lock = threading.Lock()
-_gst_ready = False
-
 
 def opencv_has_gstreamer() -> bool:
     """True when this OpenCV build can open GStreamer pipelines itself."""
@@ -65,29 +61,12 @@ def bgr_pipeline(pipeline: str) -> Tuple[str, bool]:
     return "%s! videoconvert ! %s ! %s" % (text[: match.start()], _BGR_CAPS, match.group(1).strip()), True
 
 
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
-
-
 def _import_gst():
-    """Gst and GstApp, initialised once; SourceError when PyGObject or the typelibs are missing."""
-    global _gst_ready
+    """(Gst, GLib), initialised once (payload.gst); SourceError when GStreamer is missing."""
     try:
-        import gi
-
-        gi.require_version("Gst", "1.0")
-        gi.require_version("GstApp", "1.0")
-        from gi.repository import GLib, Gst, GstApp  # noqa: F401  (GstApp gives appsink its methods)
-    except (ImportError, ValueError) as exc:
-        raise SourceError(
-            "capture.pipeline: GStreamer is not usable from Python (%s): install PyGObject and "
-            "gir1.2-gstreamer-1.0 gir1.2-gst-plugins-base-1.0, or an OpenCV built with GStreamer" % _one_line(exc)
-        ) from None
-    with _gst_lock:
-        if not _gst_ready:
-            Gst.init(None)
-            _gst_ready = True
-    return Gst, GLib
+        return import_gst()
+    except GstUnavailable as exc:
+        raise SourceError("capture.pipeline: %s, or use an OpenCV built with GStreamer" % exc) from None
 
 
 class _GiPipeline(Grabber):
@@ -100,7 +79,7 @@ class _GiPipeline(Grabber):
         try:
             self._pipeline = Gst.parse_launch(text)
         except GLib.Error as exc:
-            raise SourceError("capture.pipeline: %s (in %r)" % (_one_line(exc.message), text)) from None
+            raise SourceError("capture.pipeline: %s (in %r)" % (one_line(exc.message), text)) from None
         self._sink = self._find_appsink()
         self._bus = self._pipeline.get_bus()
         self.live = False
@@ -141,7 +120,7 @@ class _GiPipeline(Grabber):
         if _CODE_LOCATION.search(detail):  # "../gstfoo.c(123): func (): /GstPipeline:..." helps no operator
             detail = ""
         source = msg.src.get_name() if msg.src is not None else "pipeline"
-        return _one_line("%s: %s%s" % (source, err.message, " (%s)" % detail if detail else ""))
+        return one_line("%s: %s%s" % (source, err.message, " (%s)" % detail if detail else ""))
 
     def _fail(self, what: str) -> SourceError:
         error = self._bus_error()

@@ -4,6 +4,8 @@ A camera does not wait for the detector: a thread grabs continuously, stamps eac
 ``now_ns()`` at grab and keeps only the newest one, counting the ones replaced before anybody
 read them. When the camera is lost it logs once, reconnects with exponential back-off and logs
 the recovery; meanwhile ``read()`` returns None so that the service loop keeps control.
+A finite source played as a camera (``finite``: a recording at camera rate, payload.capture.paced)
+ends instead: once its last frame was read, ``read()`` raises EndOfStream.
 """
 
 import logging
@@ -19,6 +21,8 @@ from payload.errors import CameraLost, PayloadError
 from payload.types import Frame
 
 log = logging.getLogger(__name__)
+
+_END = "end of stream"
 
 
 class Grabber:
@@ -37,6 +41,7 @@ class LiveReader:
 
     ``connect()`` opens a new ``Grabber`` or raises a PayloadError (SourceError) saying why.
     ``stall_s``: a camera that delivers nothing for this long counts as lost, even without an error.
+    ``finite``: the grabber's EndOfStream ends the stream rather than losing the camera.
     """
 
     def __init__(
@@ -47,6 +52,7 @@ class LiveReader:
         name: str,
         stall_s: float = 5.0,
         poll_s: float = 0.1,
+        finite: bool = False,
     ) -> None:
         self._connect = connect
         self._retry = retry
@@ -54,6 +60,7 @@ class LiveReader:
         self._name = name
         self._stall_s = stall_s
         self._poll_s = poll_s
+        self._finite = finite
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._latest = None  # type: Optional[Frame]
@@ -104,6 +111,11 @@ class LiveReader:
                 grabber = None
                 if self._stop.is_set():
                     break
+                if self._finite and reason == _END:
+                    with self._cond:  # read() hands out the last frame, then raises EndOfStream
+                        self._closed = True
+                        self._cond.notify_all()
+                    break
                 with self._cond:
                     self._stats.connected = False
                 log.warning("camera lost source=%s reason=%s retry_in_s=%.2f", self._name, reason, self._retry.initial_s)
@@ -121,8 +133,8 @@ class LiveReader:
                 image = grabber.grab(self._poll_s)
             except CameraLost as exc:
                 return str(exc)
-            except EndOfStream:  # a camera pipeline that ends has lost its camera
-                return "end of stream"
+            except EndOfStream:  # a camera pipeline that ends has lost its camera (unless finite)
+                return _END
             except Exception as exc:  # a driver error mid-stream is a loss, not a crash of the thread
                 return "%s: %s" % (type(exc).__name__, exc)
             if image is None:

@@ -261,15 +261,20 @@ class DetectorConfig(Section):
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
 
 
+def _enabled_needs(section, name: str, key: str, what: str = ""):
+    """``section`` switched on without the setting it cannot run without: one line naming both."""
+    if section.enabled and not getattr(section, key):
+        raise ValueError("%s.enabled needs %s.%s%s" % (name, name, key, what))
+    return section
+
+
 class SigningConfig(Section):
     enabled: bool = False
     key_file: Optional[str] = Field(None, description="File holding the 32-byte key (raw or 64 hex characters).")
 
     @model_validator(mode="after")
     def _key(self):
-        if self.enabled and not self.key_file:
-            raise ValueError("signing.enabled needs signing.key_file")
-        return self
+        return _enabled_needs(self, "signing", "key_file")
 
 
 class TargetConfig(Section):
@@ -422,9 +427,7 @@ class RecordingConfig(Section):
 
     @model_validator(mode="after")
     def _dir(self):
-        if self.enabled and not self.dir:
-            raise ValueError("recording.enabled needs recording.dir: the folder for the segments")
-        return self
+        return _enabled_needs(self, "recording", "dir", ": the folder for the segments")
 
 
 class LoggingConfig(Section):

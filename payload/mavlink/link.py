@@ -2,19 +2,22 @@
 
 ``MavlinkLink(cfg)`` owns one background thread that opens the connection (retrying with
 back-off), receives, sends our HEARTBEAT, keeps time in sync with the autopilot, asks for
-its ATTITUDE stream and answers commands. The caller (the service loop) only calls
+its ATTITUDE stream and answers commands. The caller (the frame step) only calls
 ``send_message`` / ``attitude_at`` / ``time_usec_for`` and reads ``status``; none of them
-blocks or raises when the link or the autopilot is gone (sends are counted as dropped).
+blocks or raises when the link or the autopilot is gone (sends are counted as dropped), and
+none waits on the connection: ``send_message`` puts the message in the link's outbox
+(``payload.mavlink.outbox``), which the link thread writes, so a slow or blocked socket, serial
+port or TCP peer stalls the link thread only. The link thread takes its lock per received
+message, never while writing.
 
 Autopilot: the first HEARTBEAT with ``autopilot != MAV_AUTOPILOT_INVALID`` from our own
 system id (``mavlink.system_id``). Lost after ``autopilot_timeout_s`` without one (logged
 once); found again when heartbeats come back, and then ATTITUDE is requested again.
 
-Time: ``offset_ns`` = autopilot boot time - our monotonic clock, from TIMESYNC round trips
-(1 Hz, the round trip with the smallest delay of the last few wins). Without TIMESYNC
-answers a coarse offset comes from the ``time_boot_ms`` of received ATTITUDE/SYSTEM_TIME
-(biased by the link latency). ``time_usec_for`` uses it; with no estimate at all it falls
-back to our monotonic microseconds.
+Time: the autopilot's clock against ours (``payload.mavlink.clock``), from TIMESYNC round trips
+the link sends at 1 Hz (or, without answers, the ``time_boot_ms`` of what arrives);
+``time_usec_for`` uses it. Attitude and position at a capture time: ``payload.mavlink.attitude``
+keeps the samples, ``attitude_at`` / ``position_at`` interpolate them.
 
 Commands (COMMAND_LONG addressed to our system id and component id, or broadcast 0), only
 from a system id in ``mavlink.command_sysids``; others are ignored and logged:
@@ -45,20 +48,21 @@ frame's capture time. Samples without a fix (lat = lon = 0) or out of range are 
 Reload: ``apply(new_cfg)`` applies the live keys (``LIVE_KEYS``) and says which.
 """
 
-import bisect
 import logging
 import math
 import select
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
-from typing import Any, Callable, Deque, Dict, List, Optional, Tuple
+from typing import Any, Callable, List, Optional, Tuple
 
 # The connection check and the key reading live in the config layer, so that check-config runs them too.
 from payload.config import MavlinkConfig, flat_config, load_signing_key, section_changes  # noqa: F401  (load_signing_key re-exported)
 from payload.config import check_connection as _check_connection
 from payload.geometry import Attitude, Position
+from payload.mavlink.attitude import PoseBuffer
+from payload.mavlink.clock import AutopilotClock
+from payload.mavlink.outbox import Outbox
 from payload.mavlink.ratelog import RateLimitedLog
 from payload.mavlink.signing import SigningState, default_state_path
 from payload.mavlink.transport import SendDropped, UdpTransport, open_transport
@@ -70,12 +74,6 @@ _CMD_DETECTION = _M.MAV_CMD_USER_1
 _ATTITUDE_RETRY_S = 1.5
 _ATTITUDE_MAX_TRIES = 5
 _TIMESYNC_PERIOD_S = 1.0
-_TIMESYNC_SAMPLES = 8
-_ATTITUDE_BUFFER = 512
-_ATTITUDE_HOLD_NS = 100_000_000  # nearest sample is used this far outside the buffered span
-_POSITION_BUFFER = 128
-_POSITION_HOLD_NS = 300_000_000  # GLOBAL_POSITION_INT comes at a few Hz: hold it a little longer
-_UINT64_MAX = (1 << 64) - 1
 _ANGLE_MAX = 4 * math.pi  # |roll|, |pitch|, |yaw| beyond this is not an attitude
 _SIGNING_LINK_ID = 0
 #: MAVLink extension fields newer than some pymavlink releases still in use; sent only where known.
@@ -128,6 +126,11 @@ class MavlinkLink:
             self._signing_state = SigningState(default_state_path(cfg.signing.key_file))
             self._signing_state.load()
         self._lock = threading.RLock()
+        self._count_lock = threading.Lock()  # sent/dropped: counted by the link thread and by callers
+        self._outbox = Outbox()
+        #: called on the link thread with the outbox sequence number of each message written or dropped
+        #: there (the benchmark times a frame's messages to the socket with it)
+        self.on_written: Optional[Callable[[int], None]] = None
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
         self._conn: Any = None
@@ -154,20 +157,15 @@ class MavlinkLink:
         self._att_requests = 0
         self._att_next_request_ns = 0
         self._att_acked = False
-        # ATTITUDE samples in the autopilot's time base: (t_boot_ns, roll, pitch, yaw)
-        self._att: Deque[Tuple[int, float, float, float]] = deque(maxlen=_ATTITUDE_BUFFER)
+        # ATTITUDE and GLOBAL_POSITION_INT (asked for at position_rate_hz) in the autopilot's time base
+        self.poses = PoseBuffer()
         self._att_last_rx_ns: Optional[int] = None
-        # GLOBAL_POSITION_INT samples: (t_boot_ns, lat_deg, lon_deg, alt_m); asked for at position_rate_hz
         self.position_rate_hz = 0.0
-        self._pos: Deque[Tuple[int, float, float, float]] = deque(maxlen=_POSITION_BUFFER)
         self._pos_requests = 0
         self._pos_next_request_ns = 0
         self._pos_pending_until_ns = 0  # an ACK before this answers our position request
         self._command_handlers: List[Callable[[Any], bool]] = []
-        # time sync
-        self._ts_pending: Dict[int, int] = {}
-        self._ts_samples: Deque[Tuple[int, int]] = deque(maxlen=_TIMESYNC_SAMPLES)
-        self._coarse: Deque[int] = deque(maxlen=64)
+        self.clock = AutopilotClock()
         self._next_hb_ns = 0
         self._next_ts_ns = 0
 
@@ -178,6 +176,7 @@ class MavlinkLink:
         if self._thread is not None:
             return
         self._stop.clear()
+        self._outbox.open()
         self._thread = threading.Thread(target=self._run, name="mavlink-link", daemon=True)
         self._thread.start()
         log.info(
@@ -196,6 +195,7 @@ class MavlinkLink:
             self._close()
             if self._signing_state is not None:
                 self._signing_state.save()
+        self._outbox.close()
 
     def __enter__(self) -> "MavlinkLink":
         self.start()
@@ -213,7 +213,7 @@ class MavlinkLink:
     def status(self) -> LinkStatus:
         now = time.monotonic_ns()
         with self._lock:
-            offset, synced = self._offset()
+            offset, synced = self.clock.offset()
             rejected = self._rejected_before
             foreign = self._foreign_before
             if self._conn is not None:
@@ -224,7 +224,7 @@ class MavlinkLink:
                 autopilot_seen=self._ap_alive,
                 autopilot_age_s=None if self._ap_last_ns is None else (now - self._ap_last_ns) / 1e9,
                 sent=self._sent,
-                dropped=self._dropped,
+                dropped=self._dropped + self._outbox.overflow,
                 detection_enabled=self._detection_enabled,
                 attitude_age_s=None if self._att_last_rx_ns is None else (now - self._att_last_rx_ns) / 1e9,
                 time_offset_ns=offset,
@@ -237,10 +237,10 @@ class MavlinkLink:
             )
 
     def publishing(self) -> Any:
-        """Hold while one frame's target messages go out (``with link.publishing(): ...``): a
-        command that disables detection is then handled, and acknowledged, before or after them,
-        never in between, so nothing about the target follows the ACK. (The receive thread handles
-        commands under the same lock.)"""
+        """Hold while one frame's target messages are queued (``with link.publishing(): ...``): a
+        command that disables detection is then handled, and its ACK queued, before or after them,
+        never in between; the outbox keeps that order, so nothing about the target follows the ACK.
+        (The link thread handles each received message under the same lock, and writes without it.)"""
         return self._lock
 
     def apply(self, cfg: MavlinkConfig) -> List[str]:
@@ -257,12 +257,15 @@ class MavlinkLink:
             if "mavlink.heartbeat_hz" in changed:
                 self._next_hb_ns = 0  # the next one goes now, then at the new rate
             if "mavlink.attitude_rate_hz" in changed:
-                # ask again at the new rate (0: stop asking; the autopilot's own stream setting stays)
+                # ask again at the new rate (0: stop asking; the autopilot's own stream setting stays),
+                # now: an ATTITUDE of the old stream arriving first would count as the answer
                 self._att_requests = 0
                 self._att_acked = False
                 self._att_next_request_ns = 0
+                if self._ap_alive and self.cfg.attitude_rate_hz > 0:
+                    self._request_attitude(time.monotonic_ns())
             if "mavlink.timesync" in changed:
-                self._ts_pending.clear()
+                self.clock.forget_requests()
                 self._next_ts_ns = 0
         if changed:
             values = flat_config(cfg, "mavlink")
@@ -274,7 +277,8 @@ class MavlinkLink:
         from our system id or, with ``src_system``, from another (FOLLOW_TARGET: ArduPilot follows
         only another system than itself).
 
-        Never blocks or raises on a dead link: returns False and counts a drop instead.
+        Never blocks or raises on a dead link: returns False and counts a drop instead. True means
+        queued: the link thread writes it (a write that then fails is counted as dropped there).
         """
         cls = getattr(_M, f"MAVLink_{msg_type.lower()}_message")
         for name in _NEWER_EXTENSIONS:
@@ -282,13 +286,14 @@ class MavlinkLink:
                 del fields[name]  # an older pymavlink (the Jetson's) lacks it; 0 means "not used" anyway
         return self._send(cls(**fields), src_system)
 
+    @property
+    def last_queued(self) -> int:
+        """The outbox sequence number of the last message queued (compare with ``on_written``)."""
+        return self._outbox.last_seq
+
     def time_usec_for(self, t_monotonic_ns: int) -> int:
         """A time on our monotonic clock as autopilot time (us since its boot) when known, else our us."""
-        with self._lock:
-            offset, _ = self._offset()
-        if offset is None:
-            return int(t_monotonic_ns) // 1000
-        return min(max(0, (int(t_monotonic_ns) + offset) // 1000), _UINT64_MAX)
+        return self.clock.usec_for(t_monotonic_ns)
 
     def attitude_at(self, t_monotonic_ns: int) -> Optional[Attitude]:
         """The vehicle attitude at a frame's capture time, interpolated from recent ATTITUDE messages.
@@ -296,38 +301,16 @@ class MavlinkLink:
         None without a time offset, without samples, or when the time is more than 100 ms outside
         the buffered samples (stale or future). Yaw is unwrapped before interpolating.
         """
-        with self._lock:
-            offset, _ = self._offset()
-            samples = list(self._att)
-        if offset is None or not samples:
-            return None
-        around = _around(samples, int(t_monotonic_ns) + offset, _ATTITUDE_HOLD_NS)
-        if around is None:
-            return None
-        (_, r0, p0, y0), (_, r1, p1, y1), a = around
-        if around[0] is around[1]:
-            return Attitude(r0, p0, y0)
-        dyaw = math.remainder(y1 - y0, 2 * math.pi)
-        yaw = math.remainder(y0 + a * dyaw, 2 * math.pi)
-        return Attitude(r0 + a * (r1 - r0), p0 + a * (p1 - p0), yaw)
+        offset, _ = self.clock.offset()
+        return None if offset is None else self.poses.attitude_at(int(t_monotonic_ns) + offset)
 
     def position_at(self, t_monotonic_ns: int) -> Optional[Position]:
         """The vehicle position at a frame's capture time, interpolated from recent GLOBAL_POSITION_INT.
 
         None without a time offset, without samples, or when the time is more than 300 ms outside
         the buffered samples."""
-        with self._lock:
-            offset, _ = self._offset()
-            samples = list(self._pos)
-        if offset is None or not samples:
-            return None
-        around = _around(samples, int(t_monotonic_ns) + offset, _POSITION_HOLD_NS)
-        if around is None:
-            return None
-        (_, *p0), (_, *p1), a = around
-        if around[0] is around[1]:
-            return Position(*p0)
-        return Position(*(x0 + a * (x1 - x0) for x0, x1 in zip(p0, p1)))
+        offset, _ = self.clock.offset()
+        return None if offset is None else self.poses.position_at(int(t_monotonic_ns) + offset)
 
     def add_command_handler(self, handler: Callable[[Any], bool]) -> None:
         """``handler(command_long)`` is offered each COMMAND_LONG addressed to our component from an
@@ -342,28 +325,47 @@ class MavlinkLink:
     # --- sending -----------------------------------------------------------------------------
 
     def _send(self, msg: Any, src_system: Optional[int] = None) -> bool:
-        with self._lock:
-            conn = self._conn
-            if conn is None or self._broken or not conn.can_send():
+        """Queue ``msg`` for the link thread (any thread); False, and a drop counted, when there is
+        no connection or peer to send it to now."""
+        conn = self._conn
+        if conn is None or self._broken or not conn.can_send():
+            with self._count_lock:
                 self._dropped += 1
-                return False
+            return False
+        self._outbox.put(msg, src_system)
+        return True
+
+    def _flush(self) -> None:
+        """Write what the outbox holds, oldest first (the link thread only, without the lock)."""
+        if not len(self._outbox):
+            return
+        for seq, msg, src_system in self._outbox.take():
+            self._write(msg, src_system)
+            if self.on_written is not None:
+                self.on_written(seq)
+
+    def _write(self, msg: Any, src_system: Optional[int]) -> None:
+        conn = self._conn
+        ok = False
+        if conn is not None and not self._broken and conn.can_send():
             own = conn.mav.srcSystem
             try:
                 if src_system is not None:
                     conn.mav.srcSystem = src_system
                 conn.mav.send(msg)
+                ok = True
             except SendDropped:
-                self._dropped += 1
-                return False
+                pass
             except (OSError, ConnectionError) as exc:
-                self._dropped += 1
                 self._broken = True
                 log.warning("mavlink write failed: connection=%s error=%s", self.cfg.connection, exc)
-                return False
             finally:
                 conn.mav.srcSystem = own
-            self._sent += 1
-            return True
+        with self._count_lock:
+            if ok:
+                self._sent += 1
+            else:
+                self._dropped += 1
 
     def _send_heartbeat(self) -> None:
         if self.cfg.component_type == "camera":
@@ -447,6 +449,8 @@ class MavlinkLink:
             if self._broken:
                 with self._lock:
                     self._close()
+        if self._conn is not None:
+            self._flush()  # what was queued before the stop (an ACK at shutdown) still goes out
 
     def _open(self) -> Any:
         conn = open_transport(self.cfg.connection, self.cfg.baud, self.cfg.system_id, self.cfg.component_id)
@@ -471,15 +475,25 @@ class MavlinkLink:
 
     def _step(self) -> None:
         conn = self._conn
-        readable, _, _ = select.select([conn.fd], [], [], 0.02)
-        if readable:
-            with self._lock:
-                # bounded per call (64 datagrams or 4 KiB), so periodic work keeps its schedule under a flood
-                for source, msg in conn.recv_msgs():
+        wake = self._outbox.fd
+        readable, _, _ = select.select([conn.fd] if wake is None else [conn.fd, wake], [], [], 0.02)
+        if wake is not None and wake in readable:
+            self._outbox.clear_wake()
+        self._flush()
+        if conn.fd in readable:
+            # bounded per call (64 datagrams or 4 KiB), so periodic work keeps its schedule under a flood;
+            # the lock is taken per message, so a frame queuing its messages waits for one at most
+            for source, msg in conn.recv_msgs():
+                if msg.get_type() == "BAD_DATA":  # garbage touches nothing other threads read: no lock
+                    self._bad_data(msg)
+                    continue
+                with self._lock:
                     self._handle(msg, source)
+            with self._lock:
                 self._note_foreign(conn)
         with self._lock:
             self._periodic(time.monotonic_ns())
+        self._flush()
 
     def _note_foreign(self, conn: Any) -> None:
         foreign = getattr(conn, "foreign", 0)
@@ -510,10 +524,7 @@ class MavlinkLink:
         if not self._ap_alive:
             return
         if self.cfg.timesync and now_ns >= self._next_ts_ns:
-            self._ts_pending[now_ns] = now_ns
-            if len(self._ts_pending) > 16:
-                self._ts_pending.pop(min(self._ts_pending))
-            self._send(_M.MAVLink_timesync_message(0, now_ns))
+            self._send(_M.MAVLink_timesync_message(0, self.clock.request(now_ns)))
             self._next_ts_ns = now_ns + int(_TIMESYNC_PERIOD_S * 1e9)
         if (
             self.cfg.attitude_rate_hz > 0
@@ -525,7 +536,7 @@ class MavlinkLink:
         elif (
             self.position_rate_hz > 0
             and (self._att_acked or self.cfg.attitude_rate_hz <= 0 or self._att_requests >= _ATTITUDE_MAX_TRIES)
-            and not self._pos
+            and not self.poses.has_position
             and self._pos_requests < _ATTITUDE_MAX_TRIES
             and now_ns >= self._pos_next_request_ns
         ):
@@ -537,10 +548,7 @@ class MavlinkLink:
     def _handle(self, msg: Any, source: Any = None) -> None:
         kind = msg.get_type()
         if kind == "BAD_DATA":
-            if msg.reason == "Invalid signature":
-                data = bytes(msg.get_msgbuf())
-                sysid = data[5] if len(data) > 5 and data[0] == _M.PROTOCOL_MARKER_V2 else -1
-                self._log_rejected(sysid, "rejected packet from sysid=%d: missing or bad signature", sysid)
+            self._bad_data(msg)
             return
         if not _finite(msg):
             self._nonfinite += 1
@@ -561,19 +569,15 @@ class MavlinkLink:
             return
         elif kind == "ATTITUDE":
             t_boot_ns = int(msg.time_boot_ms) * 1_000_000
-            if self._att and t_boot_ns <= self._att[-1][0]:
-                if t_boot_ns < self._att[-1][0] - 1_000_000_000:
-                    self._att.clear()  # autopilot time went back: it rebooted
-                else:
-                    return
-            self._att.append((t_boot_ns, float(msg.roll), float(msg.pitch), float(msg.yaw)))
+            if not self.poses.add_attitude(t_boot_ns, msg.roll, msg.pitch, msg.yaw):
+                return
             self._att_last_rx_ns = now_ns
-            self._coarse.append(t_boot_ns - now_ns)
+            self.clock.on_boot_time(t_boot_ns, now_ns)
             self._att_acked = True  # it streams: no need to ask again
         elif kind == "GLOBAL_POSITION_INT":
             self._on_position(msg, now_ns)
         elif kind == "SYSTEM_TIME":
-            self._coarse.append(int(msg.time_boot_ms) * 1_000_000 - now_ns)
+            self.clock.on_boot_time(int(msg.time_boot_ms) * 1_000_000, now_ns)
         elif kind == "TIMESYNC":
             self._on_timesync(msg, now_ns)
         elif kind == "COMMAND_ACK" and msg.command == _M.MAV_CMD_SET_MESSAGE_INTERVAL and now_ns < self._pos_pending_until_ns:
@@ -587,6 +591,12 @@ class MavlinkLink:
             log.log(level, "ATTITUDE request answered: result=%d", msg.result)
             if not self._att_acked:
                 self._att_requests = _ATTITUDE_MAX_TRIES  # refused: do not insist
+
+    def _bad_data(self, msg: Any) -> None:
+        if msg.reason == "Invalid signature":
+            data = bytes(msg.get_msgbuf())
+            sysid = data[5] if len(data) > 5 and data[0] == _M.PROTOCOL_MARKER_V2 else -1
+            self._log_rejected(sysid, "rejected packet from sysid=%d: missing or bad signature", sysid)
 
     def _on_heartbeat(self, msg: Any, src: Tuple[int, int], now_ns: int, source: Any) -> None:
         if msg.autopilot == _M.MAV_AUTOPILOT_INVALID:
@@ -613,11 +623,8 @@ class MavlinkLink:
             self._ap_id = src
             self._ap_alive = True
             # a returning autopilot may have rebooted: forget its clock and attitude
-            self._ts_samples.clear()
-            self._ts_pending.clear()
-            self._coarse.clear()
-            self._att.clear()
-            self._pos.clear()
+            self.clock.reset()
+            self.poses.clear()
             self._pos_requests = 0
             self._pos_next_request_ns = 0
             self._att_requests = 0
@@ -635,36 +642,14 @@ class MavlinkLink:
         if (msg.lat == 0 and msg.lon == 0) or abs(lat) > 90 or abs(lon) > 180:
             return  # no fix yet, or not a position
         t_boot_ns = int(msg.time_boot_ms) * 1_000_000
-        if self._pos and t_boot_ns <= self._pos[-1][0]:
-            if t_boot_ns < self._pos[-1][0] - 1_000_000_000:
-                self._pos.clear()  # autopilot time went back: it rebooted
-            else:
-                return
-        self._pos.append((t_boot_ns, lat, lon, msg.alt / 1000.0))
-        self._coarse.append(t_boot_ns - now_ns)
+        if self.poses.add_position(t_boot_ns, lat, lon, msg.alt / 1000.0):
+            self.clock.on_boot_time(t_boot_ns, now_ns)
 
     def _on_timesync(self, msg: Any, now_ns: int) -> None:
         if msg.tc1 == 0:
             self._send(_M.MAVLink_timesync_message(now_ns, msg.ts1))
             return
-        sent_ns = self._ts_pending.pop(int(msg.ts1), None)
-        if sent_ns is None:
-            return
-        rtt_ns = now_ns - sent_ns
-        offset_ns = int(msg.tc1) - (sent_ns + now_ns) // 2
-        current, synced = self._offset()
-        if synced and abs(offset_ns - current) > 50_000_000 + rtt_ns:
-            log.info("autopilot clock jumped: offset_ms=%.1f -> %.1f", current / 1e6, offset_ns / 1e6)
-            self._ts_samples.clear()
-        self._ts_samples.append((rtt_ns, offset_ns))
-
-    def _offset(self) -> Tuple[Optional[int], bool]:
-        if self._ts_samples:
-            return min(self._ts_samples)[1], True
-        if self._coarse:
-            # arrival is always later than sending: the least-delayed sample is the best bound
-            return max(self._coarse), False
-        return None, False
+        self.clock.on_answer(msg.tc1, msg.ts1, now_ns)
 
     def _on_command(self, msg: Any) -> None:
         if msg.target_system not in (0, self.cfg.system_id):
@@ -716,14 +701,3 @@ def _finite(msg: Any) -> bool:
     if msg.get_type() == "ATTITUDE":
         return max(abs(msg.roll), abs(msg.pitch), abs(msg.yaw)) <= _ANGLE_MAX
     return True
-
-
-def _around(samples, t: int, hold_ns: int):
-    """(s0, s1, a): the time-ordered samples around time ``t`` (ns) and the weight of s1; the
-    nearest one twice (a = 0) when ``t`` is outside them by at most ``hold_ns``; None beyond."""
-    i = bisect.bisect_left([s[0] for s in samples], t)
-    if i == 0 or i == len(samples):
-        nearest = samples[0] if i == 0 else samples[-1]
-        return None if abs(t - nearest[0]) > hold_ns else (nearest, nearest, 0.0)
-    s0, s1 = samples[i - 1], samples[i]
-    return s0, s1, (t - s0[0]) / float(s1[0] - s0[0]) if s1[0] > s0[0] else 0.0

@@ -13,6 +13,9 @@ from typing import Tuple
 
 import numpy as np
 
+from payload import gst as _gst
+from payload.gst import one_line
+
 #: Encoder element -> the chain after an I420 appsrc up to parsed H.264 ({bps}, {gop} filled in).
 ENCODERS = {
     "nvv4l2h264enc": ("nvvidconv ! video/x-raw(memory:NVMM),format=I420 ! nvv4l2h264enc name=enc bitrate={bps} "
@@ -32,37 +35,17 @@ AUTO_ORDER = ("nvv4l2h264enc", "openh264enc")
 #: few cores) the video gets what detection leaves and drops frames, instead of slowing it.
 VIDEO_NICE = 19
 
-_init_lock = threading.Lock()
-_initialised = False
-
 
 class VideoUnavailable(Exception):
     """Video cannot run here; the message is one line for the operator."""
 
 
-def _one_line(text) -> str:
-    return " ".join(str(text).split())
-
-
 def import_gst():
-    """(Gst, GLib), initialised once; VideoUnavailable when PyGObject or the typelibs are missing."""
-    global _initialised
+    """(Gst, GLib), initialised once (payload.gst); VideoUnavailable when GStreamer is missing."""
     try:
-        import gi
-
-        gi.require_version("Gst", "1.0")
-        gi.require_version("GstApp", "1.0")
-        # GstApp before any appsrc/appsink exists: PyGObject wraps an element's class once, and one
-        # made without GstApp loaded never gets its methods (the capture's appsink.try_pull_sample)
-        from gi.repository import GLib, Gst, GstApp  # noqa: F401
-    except (ImportError, ValueError) as exc:
-        raise VideoUnavailable("GStreamer is not usable from Python (%s): install the gstreamer extra "
-                               "(PyGObject) and gir1.2-gstreamer-1.0" % _one_line(exc)) from None
-    with _init_lock:
-        if not _initialised:
-            Gst.init(None)
-            _initialised = True
-    return Gst, GLib
+        return _gst.import_gst()
+    except _gst.GstUnavailable as exc:
+        raise VideoUnavailable(str(exc)) from None
 
 
 def import_rtsp_server():
@@ -75,7 +58,7 @@ def import_rtsp_server():
         from gi.repository import GstRtspServer
     except (ImportError, ValueError) as exc:
         raise VideoUnavailable("the RTSP server is not usable from Python (%s): install "
-                               "gir1.2-gst-rtsp-server-1.0" % _one_line(exc)) from None
+                               "gir1.2-gst-rtsp-server-1.0" % one_line(exc)) from None
     return GstRtspServer
 
 
@@ -173,7 +156,7 @@ class OwnPipeline:
         try:
             self.pipeline = self.Gst.parse_launch(text)
         except GLib.Error as exc:
-            raise VideoUnavailable("%s (in %r)" % (_one_line(exc.message), text)) from None
+            raise VideoUnavailable("%s (in %r)" % (one_line(exc.message), text)) from None
         self.bus = self.pipeline.get_bus()
         lower_streaming_threads(self.bus)
 
@@ -199,7 +182,7 @@ class OwnPipeline:
         """The first pending error as one line (element: message), or None."""
         for msg in self.messages(self.Gst.MessageType.ERROR):
             err, _debug = msg.parse_error()
-            return "%s: %s" % (msg.src.get_name() if msg.src is not None else "?", _one_line(err.message))
+            return "%s: %s" % (msg.src.get_name() if msg.src is not None else "?", one_line(err.message))
         return None
 
     def finish(self, appsrc, timeout_s: float = 3.0) -> None:

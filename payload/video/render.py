@@ -18,7 +18,7 @@ from payload.detect.pipeline import GladResult
 
 
 def lock_text(state: str, result: GladResult) -> str:
-    """The lock state as drawn: e.g. 'TRACKING 0.87', 'COASTING 0.60', 'SEARCHING'."""
+    """The lock state as drawn (``payload.step.state_text``): e.g. 'DETECTED 0.87', 'COASTING 0.60', 'SEARCHING'."""
     if result.target is None:
         return state.upper()
     return "%s %.2f" % (state.upper(), result.target.score)
