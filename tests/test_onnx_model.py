@@ -132,12 +132,12 @@ def test_runtime_never_imports_torch():
         "    except Exception:\n"
         "        pass\n"
         "from payload.config import DetectorConfig\n"
-        "from payload.models import build_detectors\n"
+        "from payload.detect.factory import build_detectors, builtin_model_path\n"
         "import os\n"
-        "if os.path.exists(payload.models.builtin_model_path('global')):\n"
+        "if os.path.exists(builtin_model_path('global')):\n"
         "    d = build_detectors(DetectorConfig())\n"
         "    d.global_appearance.detect(np.zeros((512, 640, 3), np.uint8))\n"
-        "print('torch' in sys.modules, 'payload.models' in sys.modules)\n"
+        "print('torch' in sys.modules, 'payload.detect.factory' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
