@@ -7,7 +7,7 @@ import pytest
 from payload.boxes import iou_matrix
 from payload.config import MotionConfig
 from payload.detect.ego_motion import CameraMotion, estimate
-from payload.detect.motion import MotionDetector, flow_spread
+from payload.detect.motion import FALLBACK_SCORE, MotionDetector, flow_spread
 
 W, H = 320, 240
 
@@ -264,3 +264,54 @@ def test_given_camera_motion_is_used_as_is():
 def test_unknown_module_rejected():
     with pytest.raises(ValueError, match="GMD"):
         MotionDetector(MotionConfig(), "XYZ")
+
+
+# --- time budget: candidates capped, large blobs tracked on a smaller copy ---------------------
+
+
+def movers_scene(strong, weak):
+    """A flat grey scene with ``weak`` faint textured movers and then ``strong`` dark ones, each
+    moving (+6, +3) px between the frames; the cur boxes of the strong ones."""
+    prev = np.full((H, W), 150, np.uint8)
+    cur = prev.copy()
+    boxes = []
+    for i in range(weak + strong):
+        x, y = 10 + 50 * (i % 6), 10 + 60 * (i // 6)
+        faint = (110 + MOVER[:24, :24] // 3).astype(np.uint8)  # 110-140 on 150
+        patch = faint if i < weak else MOVER[:24, :24]  # 0-90 on 150
+        prev = paste(prev, patch, x, y)
+        cur = paste(cur, patch, x + 6, y + 3)
+        if i >= weak:
+            boxes.append((x + 6, y + 3, x + 30, y + 27))
+    return prev, cur, boxes
+
+
+def test_candidates_over_the_cap_are_left_out_strongest_difference_first():
+    prev, cur, boxes = movers_scene(strong=3, weak=5)
+    still = CameraMotion(np.eye(3))  # a camera at rest: only the movers move
+    cfg = MotionConfig(t2=3, alpha=0.0, merge_distance_px=0, max_candidates=100)
+    full = MotionDetector(cfg, "GMD").detect(prev, cur, still)
+    assert len(full.candidates) == 8 and full.left_out == 0
+    assert len(full.detections) >= 6  # the faint movers pass the motion classifier too when judged
+    capped = MotionDetector(cfg.model_copy(update={"max_candidates": 3}), "GMD").detect(prev, cur, still)
+    assert len(capped.candidates) == 8 and capped.left_out == 5
+    assert len(capped.detections) == 3
+    assert all(max(iou(d, b) for b in boxes) > 0.5 for d in capped.detections.xyxy), capped.detections.xyxy
+
+
+def test_a_large_featureless_blob_is_tracked_at_its_true_speed():
+    # a smooth 60 px disc has no corners to track: it is judged on one vector of the whole blob,
+    # measured on a copy scaled to the window cap, and reported in full-frame pixels
+    prev = np.full((H, W), 150, np.uint8)
+    disc = np.full((H, W), 150, np.uint8)
+    cv2.circle(disc, (100, 120), 30, 40, -1)
+    disc = cv2.GaussianBlur(disc, (0, 0), 6)
+    prev = disc
+    cur = np.roll(disc, (0, 6), axis=(0, 1))  # moves 6 px right
+    for min_speed, found in ((4.0, True), (8.0, False)):
+        cfg = MotionConfig(alpha=0.0, min_speed_px=min_speed, corner_quality=0.9)
+        result = MotionDetector(cfg, "GMD").detect(prev, cur, CameraMotion(np.eye(3)))
+        assert len(result.candidates) == 1
+        assert len(result.detections) == int(found), (min_speed, result.detections)
+        if found:
+            assert result.detections.score[0] == pytest.approx(FALLBACK_SCORE)

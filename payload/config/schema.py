@@ -127,6 +127,12 @@ class MotionConfig(Section):
     max_aspect: float = Field(3.0, ge=1, le=100, description="Longest/shortest box side allowed.")
     merge_distance_px: float = Field(15.0, ge=0, le=1000, description="D1: merge boxes closer than this.")
     max_blobs: int = Field(50, ge=1, le=100000, description="More blobs than this: frame too noisy, no detection.")
+    # A frame's cost grows with its candidates (corners and two LK tracks each): a cluttered 1080p
+    # frame had 20-50 and took GMD to hundreds of ms. The strongest differences are judged first.
+    max_candidates: int = Field(
+        12, ge=1, le=100000,
+        description="The motion classifier judges at most this many candidates a frame, strongest frame difference first; the rest are left out and the frame counts as degraded.",
+    )
     angle_spread_max: float = Field(
         0.33, ge=0, le=10, description="T3: circular spread (1 - mean resultant length) of flow angles; 0.33 ~ the paper's angle variance 0.8 rad^2."
     )

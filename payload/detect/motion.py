@@ -34,6 +34,9 @@ MIN_CORNERS = 3
 MAX_FORWARD_BACKWARD_PX = 1.0
 #: Score of a candidate accepted on its single blob-level flow vector (no coherence evidence).
 FALLBACK_SCORE = 0.25
+#: The blob-level flow vector's LK window at most (px, odd): a larger blob is tracked on a copy
+#: scaled down to fit. LK's cost grows with the window's area: a 100 px window took ~50 ms.
+MAX_BOX_WINDOW_PX = 31
 _KERNEL_3X3 = np.ones((3, 3), np.uint8)
 
 
@@ -52,6 +55,7 @@ class MotionResult:
     camera: CameraMotion  # the camera motion the frames were aligned with
     threshold: float  # the binarisation threshold used: T2 + alpha*T_A + beta*T_M
     too_noisy: bool  # more than max_blobs blobs -> no detections
+    left_out: int = 0  # candidates the motion classifier did not judge (over max_candidates): degraded
 
 
 def flow_spread(flows_xy: np.ndarray) -> Tuple[float, float, float]:
@@ -145,23 +149,39 @@ class MotionDetector:
                 Detections.empty(), candidates.shifted(dx, dy), camera, threshold, too_noisy
             )
 
-        scores = self._classify(aligned, cur_grey, mask, boxes)
+        judged, left_out = self._strongest(boxes, diff, mask)
+        scores = self._classify(aligned, cur_grey, mask, judged)
         keep = scores > 0
-        detections = Detections(boxes[keep], scores[keep], self.module)
+        detections = Detections(judged[keep], scores[keep], self.module)
         if log.isEnabledFor(logging.DEBUG):
             log.debug(
-                "module=%s threshold=%.1f t_a=%.2f t_m=%.2f homography_ok=%s candidates=%d accepted=%d",
+                "module=%s threshold=%.1f t_a=%.2f t_m=%.2f homography_ok=%s candidates=%d left_out=%d accepted=%d",
                 self.module,
                 threshold,
                 t_a,
                 camera.mean_shift_px,
                 camera.ok,
                 len(boxes),
+                left_out,
                 int(keep.sum()),
             )
         return MotionResult(
-            detections.shifted(dx, dy), candidates.shifted(dx, dy), camera, threshold, False
+            detections.shifted(dx, dy), candidates.shifted(dx, dy), camera, threshold, False, left_out
         )
+
+    def _strongest(self, boxes: np.ndarray, diff: np.ndarray, mask: np.ndarray) -> Tuple[np.ndarray, int]:
+        """The candidates the motion classifier judges: all of them up to max_candidates, else the
+        max_candidates with the largest mean frame difference over their foreground (a moving
+        drone differs strongly; misaligned texture and swaying leaves only just pass the
+        threshold); and how many were left out."""
+        cap = self.cfg.max_candidates
+        if len(boxes) <= cap:
+            return boxes, 0
+        strength = np.empty(len(boxes), np.float64)
+        for i, (x1, y1, x2, y2) in enumerate(boxes.astype(np.int32)):
+            strength[i] = cv2.mean(diff[y1:y2, x1:x2], mask=mask[y1:y2, x1:x2])[0]
+        order = np.argsort(-strength, kind="stable")[:cap]
+        return boxes[np.sort(order)], len(boxes) - cap
 
     def _blobs(self, mask: np.ndarray) -> Tuple[np.ndarray, bool]:
         """Candidate boxes (crop xyxy) from the cleaned mask, and whether the frame is too noisy.
@@ -269,11 +289,18 @@ class MotionDetector:
         """Relative speed (px) of the whole box by one LK vector at its centre; 0 if LK loses it."""
         x1, y1, x2, y2 = box
         side = int(max(x2 - x1, y2 - y1, self.cfg.lk_window_px)) | 1  # odd, covers the blob
-        centre = np.array([[[(x1 + x2) / 2.0, (y1 + y2) / 2.0]]], np.float32)
+        scale = 1.0
+        if side > MAX_BOX_WINDOW_PX:  # the same blob on a smaller copy, within the window cap
+            scale = MAX_BOX_WINDOW_PX / float(side)
+            size = (max(1, int(round(prev_crop.shape[1] * scale))), max(1, int(round(prev_crop.shape[0] * scale))))
+            prev_crop = cv2.resize(prev_crop, size, interpolation=cv2.INTER_AREA)
+            cur_crop = cv2.resize(cur_crop, size, interpolation=cv2.INTER_AREA)
+            side = MAX_BOX_WINDOW_PX
+        centre = np.array([[[(x1 + x2) / 2.0 * scale, (y1 + y2) / 2.0 * scale]]], np.float32)
         lk = lk_params(self.cfg)
         lk["winSize"] = (side, side)
         flows = _tracked_flows(prev_crop, cur_crop, centre, lk)
-        return float(np.hypot(*flows[0])) if len(flows) else 0.0
+        return float(np.hypot(*flows[0])) / scale if len(flows) else 0.0
 
 
 def _tracked_flows(prev: np.ndarray, cur: np.ndarray, points: np.ndarray, lk: dict) -> np.ndarray:

@@ -50,6 +50,9 @@ class GladResult:
     # a lock is followed but not reported: LockCheck or the verifier is not yet convinced of it
     following: bool = False
     lock_p: float = float("nan")  # the verifier's drone probability for the lock (nan: not judged)
+    # per module, the work it left out this frame to stay within its time budget (e.g. GMD:
+    # candidates over motion.max_candidates not judged); empty on a frame done in full
+    degraded: Dict[str, int] = field(default_factory=dict)
 
     @property
     def state(self) -> str:
@@ -82,6 +85,7 @@ class Glad:
         self._observed: Optional[Detections] = None
         self._drone_p: Optional[float] = None
         self._homography: Optional[np.ndarray] = None
+        self._degraded: Dict[str, int] = {}
         self.last_lock_row: Optional[np.ndarray] = None  # the verifier's row of this frame's lock
         self.last_lock_box: Optional[np.ndarray] = None  # the box that frame reports if verified
         self._prev: Optional[GreyLevels] = None
@@ -172,6 +176,7 @@ class Glad:
         grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
         timings["grey"] = _ms(t0)
         self._observed, self._drone_p, self._homography = None, None, None
+        self._degraded = {}
         mode = self.switcher.mode if self.region.active else GLOBAL
         if mode == LOCAL:
             result = self._local(frame, grey, timings)
@@ -182,6 +187,8 @@ class Glad:
         self._verify(frame, grey, result, timings)
         if result.target is not None:
             result = replace(result, lock_p=self.verifier.probability)
+        if self._degraded:
+            result = replace(result, degraded=self._degraded)
         verified = self.verifier.verified or self.designated  # the operator picked this one: it needs no drone verdict
         if not (self.lock.confirmed and verified) and (len(result.detections) or result.target is not None):
             # followed, not reported: the classifier has not confirmed this lock (LockCheck), or
@@ -226,6 +233,8 @@ class Glad:
             camera = self.ego_motion.estimate(prev, grey, fine=True)
             motion = self.gmd.detect(prev.full, grey.full, camera)
             timings[GMD] = _ms(t)
+            if motion.left_out:
+                self._degraded[GMD] = motion.left_out
             found = self._classify(frame.image, motion.detections, timings)
             candidates.append(motion.detections)
         if not len(found) and gad is not None and self.cfg.global_.appearance.enabled:
@@ -270,6 +279,8 @@ class Glad:
             motion = self.lmd.detect(prev.full[y1:y2, x1:x2], grey.full[y1:y2, x1:x2], camera.for_crop((x1, y1)),
                                      offset_xy=(x1, y1))
             timings[LMD] = _ms(t)
+            if motion.left_out:
+                self._degraded[LMD] = motion.left_out
             found = self._classify(frame.image, motion.detections, timings)
             candidates.append(motion.detections)
         t = time.perf_counter()
