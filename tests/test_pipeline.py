@@ -1,5 +1,6 @@
 """GLAD pipeline behaviour on tiny real ONNX models."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -270,3 +271,34 @@ def test_a_scan_hit_must_convince_the_classifier_as_a_lock_must(tmp_path, confir
     results = [glad.process(_tiny_spot_frame(i)) for i in range(8)]
     assert any(len(r.detections) for r in results) == found
     assert any(len(r.candidates) for r in results)  # the scan saw it either way
+
+
+# --- time budget: a frame with more motion candidates than GMD judges says so -------------------
+
+def _movers_frames(count, shift_xy=(6, 3)):
+    """Two frames of a still camera over dark textured ground with ``count`` grey textured movers
+    (all below the spot detector's 0.5 brightness: GAD finds nothing, so GMD runs)."""
+    from payload.types import Frame
+
+    rng = np.random.default_rng(4)
+    ground = cv2.GaussianBlur(rng.integers(0, 60, (384, 640), dtype=np.uint8), (0, 0), 2.0)
+    prev = np.repeat(ground[:, :, None], 3, axis=2)
+    cur = prev.copy()
+    for i in range(count):
+        x, y = 20 + 100 * (i % 6), 40 + 120 * (i // 6)
+        patch = rng.integers(60, 120, (20, 20, 1), dtype=np.uint8).repeat(3, axis=2)
+        prev[y:y + 20, x:x + 20] = patch
+        cur[y + shift_xy[1]:y + 20 + shift_xy[1], x + shift_xy[0]:x + 20 + shift_xy[0]] = patch
+    return Frame(prev, 0, 0, 0), Frame(cur, 1, 33_000_000, 0)
+
+
+@pytest.mark.parametrize("cap, left_out", [(100, 0), (3, 7)])
+def test_gmd_over_its_candidate_cap_judges_the_cap_and_reports_the_frame_degraded(tmp_path, cap, left_out):
+    glad = _spot_glad(tmp_path, **{"detector.global.motion.enabled": True,
+                                   "detector.global.motion.max_candidates": cap,
+                                   "detector.global.motion.merge_distance_px": 0})
+    first, second = _movers_frames(10)
+    assert glad.process(first).degraded == {}
+    result = glad.process(second)
+    assert "GMD" in result.timings_ms
+    assert result.degraded == ({"GMD": left_out} if left_out else {})
