@@ -247,7 +247,7 @@ class SwitcherConfig(Section):
 
 class DetectorConfig(Section):
     backend: Literal["cpu", "cuda", "tensorrt"] = "cpu"
-    threads: int = Field(0, ge=0, le=256, description="ONNX Runtime intra-op threads; 0 = its default.")
+    threads: int = Field(0, ge=0, le=256, description="ONNX Runtime intra-op threads of every model; 0 = one fewer than the CPU cores (at least 1).")
     fp16: bool = Field(True, description="TensorRT: build fp16 engines.")
     engine_cache_dir: Optional[str] = Field(None, description="TensorRT engine cache folder.")
     # GMD deviates from the paper's Table II where measured on 1080p moving-camera scenes: the
