@@ -106,3 +106,12 @@ def test_a_failed_estimate_at_a_level_stays_the_exact_identity():
     failed = CameraMotion.identity(tracked=3, mean_shift_px=2.0).to_full_frame((1 / 6.0, 1 / 6.0))
     assert not failed.ok and failed.matrix.tolist() == np.eye(3).tolist()
     assert failed.mean_shift_px == pytest.approx(12.0)
+
+
+def test_at_scale_is_the_motion_on_a_scaled_copy():
+    prev, cur = shifted_pair((640, 480), (8, -4))
+    full = estimate(prev, cur, MotionConfig())
+    half = full.at_scale(0.5)
+    assert half.apply((100.0, 50.0)) == pytest.approx(tuple(np.array(full.apply((200.0, 100.0))) / 2), abs=1e-9)
+    np.testing.assert_allclose(half.to_full_frame((0.5, 0.5)).matrix, full.matrix, atol=1e-12)
+    assert half.mean_shift_px == pytest.approx(full.mean_shift_px / 2)

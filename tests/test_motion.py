@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from payload.boxes import iou_matrix
-from payload.config import MotionConfig
+from payload.config import Config, MotionConfig
 from payload.detect.ego_motion import CameraMotion, estimate
 from payload.detect.motion import FALLBACK_SCORE, MotionDetector, flow_spread
 
@@ -315,3 +315,21 @@ def test_a_large_featureless_blob_is_tracked_at_its_true_speed():
         assert len(result.detections) == int(found), (min_speed, result.detections)
         if found:
             assert result.detections.score[0] == pytest.approx(FALLBACK_SCORE)
+
+
+def test_a_wide_frame_is_segmented_at_half_size_and_judged_at_full_resolution():
+    # 1920x1080 panning textured ground, an 8 px dark mover: found, its box in full-frame pixels
+    m = 40
+    ground = texture(1080 + 2 * m, 1920 + 2 * m, 11, 3.0, 90, 200)
+    prev = np.ascontiguousarray(ground[m:m + 1080, m:m + 1920])
+    cur = np.ascontiguousarray(ground[m + 2:m + 2 + 1080, m + 3:m + 3 + 1920])  # content moves (-3, -2)
+    dot = texture(8, 8, 12, 0.8, 0, 40)
+    prev, cur = paste(prev, dot, 1200, 700), paste(cur, dot, 1207, 704)
+    cfg = Config().detector.global_.motion
+    result = detect(MotionDetector(cfg, "GMD"), prev, cur)
+    assert result.camera.ok and not result.too_noisy
+    assert len(result.detections) == 1, (result.candidates.xyxy, result.detections.xyxy)
+    x1, y1, x2, y2 = result.detections.xyxy[0]
+    # the blob of a frame difference covers where the mover was (aligned) and is: 1197-1215, 698-712
+    assert x1 <= 1197 and y1 <= 698 and x2 >= 1215 and y2 >= 712, result.detections.xyxy
+    assert x2 - x1 < 40 and y2 - y1 < 30, result.detections.xyxy

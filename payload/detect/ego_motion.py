@@ -68,6 +68,14 @@ class CameraMotion:
         matrix = to_crop @ self.matrix @ to_full
         return CameraMotion(matrix / matrix[2, 2], self.ok, self.tracked, self.inliers, self.mean_shift_px)
 
+    def at_scale(self, scale: float) -> "CameraMotion":
+        """This motion in the pixels of a copy of both frames scaled by ``scale``."""
+        if not self.ok:
+            return CameraMotion.identity(self.tracked, self.mean_shift_px * scale)
+        s = np.diag([scale, scale, 1.0])
+        matrix = s @ self.matrix @ np.linalg.inv(s)
+        return CameraMotion(matrix / matrix[2, 2], True, self.tracked, self.inliers, self.mean_shift_px * scale)
+
     def to_full_frame(self, scale_xy: Tuple[float, float]) -> "CameraMotion":
         """This motion, estimated on a level that scales full-frame pixels by ``scale_xy``, in
         full-frame pixels."""

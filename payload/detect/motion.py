@@ -5,10 +5,13 @@ boxes out, in two steps:
 
 1. Segmentation: E = |blur(cur) - blur(warp_H(prev))| (saturating uint8), binarised with
    T2 + alpha*T_A + beta*T_M, opened and closed (3x3), connected blobs (outer contours), area and
-   aspect limits, boxes closer than D1 merged.
-2. Motion classifier: Shi-Tomasi corners of each candidate, their Lucas-Kanade flow relative
-   to the background motion; incoherent (swaying trees, glitter, alignment errors) or too slow
-   candidates are rejected. The CNN appearance classifier runs later, elsewhere.
+   aspect limits, boxes closer than D1 merged. Frames wider than MAX_SEGMENT_WIDTH_PX (1080p) are
+   segmented on a half-size copy (blur, opening and closing scaled to match).
+2. Motion classifier, at full resolution: Shi-Tomasi corners of each candidate, their
+   Lucas-Kanade flow relative to the background motion; incoherent (swaying trees, glitter,
+   alignment errors) or too slow candidates are rejected. At most ``max_candidates`` a frame, the
+   strongest differences first (the time budget). The CNN appearance classifier runs later,
+   elsewhere.
 
 Every threshold comes from ``MotionConfig``.
 """
@@ -34,6 +37,10 @@ MIN_CORNERS = 3
 MAX_FORWARD_BACKWARD_PX = 1.0
 #: Score of a candidate accepted on its single blob-level flow vector (no coherence evidence).
 FALLBACK_SCORE = 0.25
+#: Frames wider than this are segmented (warp, difference, threshold, morphology, blobs) on a
+#: half-size copy, and each candidate is judged at full resolution on its own crop: at 1080p the
+#: full-frame warp, blurs and closing were ~2/3 of GMD's time (docs/results.md "Speed").
+MAX_SEGMENT_WIDTH_PX = 1280
 #: The blob-level flow vector's LK window at most (px, odd): a larger blob is tracked on a copy
 #: scaled down to fit. LK's cost grows with the window's area: a 100 px window took ~50 ms.
 MAX_BOX_WINDOW_PX = 31
@@ -110,38 +117,35 @@ class MotionDetector:
         cfg = self.cfg
         check_pair(prev_grey, cur_grey)
         h, w = cur_grey.shape
-
-        # prev warped into cur's pixels; where the warp has no source pixel, cur itself shows
-        # through (BORDER_TRANSPARENT), so the invalidated border differences to exactly 0.
-        if camera.ok:
-            aligned = cur_grey.copy()
-            cv2.warpPerspective(
-                prev_grey,
-                camera.matrix,
-                (w, h),
-                dst=aligned,
-                flags=cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_TRANSPARENT,
-            )
+        step = 2 if w > MAX_SEGMENT_WIDTH_PX else 1
+        if step == 1:
+            seg_prev, seg_cur, seg_camera = prev_grey, cur_grey, camera
         else:
-            aligned = prev_grey
+            size = (w // step, h // step)
+            seg_prev = cv2.resize(prev_grey, size, interpolation=cv2.INTER_AREA)
+            seg_cur = cv2.resize(cur_grey, size, interpolation=cv2.INTER_AREA)
+            seg_camera = camera.at_scale(1.0 / step)
+        sh, sw = seg_cur.shape
+        aligned = _aligned(seg_prev, seg_cur, seg_camera)
 
         # T_A: lighting change, mean |raw cur - raw prev| without compensation.
-        t_a = cv2.norm(cur_grey, prev_grey, cv2.NORM_L1) / float(w * h)
+        t_a = cv2.norm(seg_cur, seg_prev, cv2.NORM_L1) / float(sw * sh)
         threshold = cfg.t2 + cfg.alpha * t_a + cfg.beta * camera.mean_shift_px
-        if cfg.blur_px:
-            k = (cfg.blur_px, cfg.blur_px)
-            diff = cv2.absdiff(cv2.GaussianBlur(cur_grey, k, 0), cv2.GaussianBlur(aligned, k, 0))
+        blur_px = cfg.blur_px if step == 1 else (cfg.blur_px // step) | 1  # 5 -> 3 on the half-size copy
+        if blur_px > 1:
+            k = (blur_px, blur_px)
+            diff = cv2.absdiff(cv2.GaussianBlur(seg_cur, k, 0), cv2.GaussianBlur(aligned, k, 0))
         else:
-            diff = cv2.absdiff(cur_grey, aligned)
+            diff = cv2.absdiff(seg_cur, aligned)
         # uint8 threshold compares E > floor(threshold): the same as E > threshold for integer E.
         _, mask = cv2.threshold(diff, threshold, 255, cv2.THRESH_BINARY)
-        if cfg.open_iterations:
-            mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _KERNEL_3X3, iterations=cfg.open_iterations)
-        if cfg.close_iterations:
-            mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, _KERNEL_3X3, iterations=cfg.close_iterations)
+        open_iterations, close_iterations = (-(-n // step) for n in (cfg.open_iterations, cfg.close_iterations))
+        if open_iterations:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _KERNEL_3X3, iterations=open_iterations)
+        if close_iterations:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, _KERNEL_3X3, iterations=close_iterations)
 
-        boxes, too_noisy = self._blobs(mask)
+        boxes, too_noisy = self._blobs(mask, step)
         dx, dy = float(offset_xy[0]), float(offset_xy[1])
         candidates = Detections(boxes, np.zeros(len(boxes), np.float32), self.module)
         if too_noisy or not len(boxes):
@@ -149,8 +153,11 @@ class MotionDetector:
                 Detections.empty(), candidates.shifted(dx, dy), camera, threshold, too_noisy
             )
 
-        judged, left_out = self._strongest(boxes, diff, mask)
-        scores = self._classify(aligned, cur_grey, mask, judged)
+        judged, left_out = self._strongest(boxes, diff, mask, step)
+        if step == 1:
+            scores = self._classify(lambda crop: aligned[crop], cur_grey, mask, step, judged)
+        else:  # prev aligned at full resolution only around each candidate judged
+            scores = self._classify(lambda crop: _aligned(prev_grey, cur_grey, camera, crop), cur_grey, mask, step, judged)
         keep = scores > 0
         detections = Detections(judged[keep], scores[keep], self.module)
         if log.isEnabledFor(logging.DEBUG):
@@ -169,7 +176,7 @@ class MotionDetector:
             detections.shifted(dx, dy), candidates.shifted(dx, dy), camera, threshold, False, left_out
         )
 
-    def _strongest(self, boxes: np.ndarray, diff: np.ndarray, mask: np.ndarray) -> Tuple[np.ndarray, int]:
+    def _strongest(self, boxes: np.ndarray, diff: np.ndarray, mask: np.ndarray, step: int) -> Tuple[np.ndarray, int]:
         """The candidates the motion classifier judges: all of them up to max_candidates, else the
         max_candidates with the largest mean frame difference over their foreground (a moving
         drone differs strongly; misaligned texture and swaying leaves only just pass the
@@ -178,13 +185,14 @@ class MotionDetector:
         if len(boxes) <= cap:
             return boxes, 0
         strength = np.empty(len(boxes), np.float64)
-        for i, (x1, y1, x2, y2) in enumerate(boxes.astype(np.int32)):
+        for i, (x1, y1, x2, y2) in enumerate(boxes.astype(np.int32) // step):
             strength[i] = cv2.mean(diff[y1:y2, x1:x2], mask=mask[y1:y2, x1:x2])[0]
         order = np.argsort(-strength, kind="stable")[:cap]
         return boxes[np.sort(order)], len(boxes) - cap
 
-    def _blobs(self, mask: np.ndarray) -> Tuple[np.ndarray, bool]:
+    def _blobs(self, mask: np.ndarray, step: int) -> Tuple[np.ndarray, bool]:
         """Candidate boxes (crop xyxy) from the cleaned mask, and whether the frame is too noisy.
+        ``step``: the mask's pixel is step x step image pixels (areas and boxes are in image pixels).
 
         Blobs are 8-connected foreground regions (holes inside count as the blob). Area (its
         foreground pixel count) and aspect (longest/shortest box side) limits apply
@@ -200,14 +208,16 @@ class MotionDetector:
         bw = rects[:, 2].astype(np.float32)
         bh = rects[:, 3].astype(np.float32)
         aspect = np.maximum(bw, bh) / np.maximum(np.minimum(bw, bh), 1.0)
+        pixel_area = float(step * step)
         # A box smaller than the minimum area cannot hold enough pixels: skip counting them.
-        keep = (bw * bh >= cfg.min_blob_area_px) & (aspect <= cfg.max_aspect)
+        keep = (bw * bh * pixel_area >= cfg.min_blob_area_px) & (aspect <= cfg.max_aspect)
         for i in np.flatnonzero(keep):
             x, y, rw, rh = rects[i]
-            area = cv2.countNonZero(
-                mask[y : y + rh, x : x + rw]
-            )  # pixels of the blob (and of any neighbour in its box)
+            # pixels of the blob (and of any neighbour in its box)
+            area = cv2.countNonZero(mask[y : y + rh, x : x + rw]) * pixel_area
             keep[i] = cfg.min_blob_area_px <= area <= cfg.max_blob_area_px
+        rects = rects * step
+        bw, bh = bw * step, bh * step
         x = rects[keep, 0].astype(np.float32)
         y = rects[keep, 1].astype(np.float32)
         boxes = np.stack([x, y, x + bw[keep], y + bh[keep]], axis=1).reshape(-1, 4)
@@ -219,14 +229,16 @@ class MotionDetector:
         return boxes, False
 
     def _classify(
-        self, aligned: np.ndarray, cur: np.ndarray, mask: np.ndarray, boxes: np.ndarray
+        self, aligned_crop, cur: np.ndarray, mask: np.ndarray, step: int, boxes: np.ndarray
     ) -> np.ndarray:
         """Motion plausibility per candidate box; 0 = rejected by the motion classifier.
 
-        Corners are taken in ``aligned`` (prev warped by H into cur's pixels), so their LK flow
+        Corners are taken in the aligned previous frame (prev warped by H into cur's pixels;
+        ``aligned_crop(slices)`` gives it for a crop of cur), so their LK flow
         into cur is already relative to the background: d = p_cur - H(p_prev). A static object
         painted on moving ground has d ~ 0. Corners are searched only on the blob's foreground
-        pixels inside the box, so background texture caught in the box does not dilute the flow.
+        pixels inside the box (``mask``, whose pixel is step x step image pixels), so background
+        texture caught in the box does not dilute the flow.
         Tracks failing the forward-backward check are dropped (mostly background corners that
         the mover covers in cur). A candidate with fewer than MIN_CORNERS tracked corners is judged on one LK vector of
         the whole box (window = box size): accepted with FALLBACK_SCORE if it moves >= T5.
@@ -239,10 +251,13 @@ class MotionDetector:
         for i, (x1, y1, x2, y2) in enumerate(boxes.astype(np.int32)):
             cx1, cy1 = max(0, x1 - margin), max(0, y1 - margin)
             cx2, cy2 = min(w, x2 + margin), min(h, y2 + margin)
-            prev_crop = aligned[cy1:cy2, cx1:cx2]
+            prev_crop = aligned_crop((slice(cy1, cy2), slice(cx1, cx2)))
             cur_crop = cur[cy1:cy2, cx1:cx2]
             fg = np.zeros_like(prev_crop)
-            fg[y1 - cy1 : y2 - cy1, x1 - cx1 : x2 - cx1] = mask[y1:y2, x1:x2]
+            blob = mask[y1 // step : y2 // step, x1 // step : x2 // step]
+            if step > 1:
+                blob = cv2.resize(blob, (x2 - x1, y2 - y1), interpolation=cv2.INTER_NEAREST)
+            fg[y1 - cy1 : y2 - cy1, x1 - cx1 : x2 - cx1] = blob
             corners = cv2.goodFeaturesToTrack(
                 prev_crop, cfg.max_corners, cfg.corner_quality, cfg.corner_min_distance_px, mask=fg
             )
@@ -301,6 +316,23 @@ class MotionDetector:
         lk["winSize"] = (side, side)
         flows = _tracked_flows(prev_crop, cur_crop, centre, lk)
         return float(np.hypot(*flows[0])) / scale if len(flows) else 0.0
+
+
+def _aligned(prev: np.ndarray, cur: np.ndarray, camera: CameraMotion, crop=None) -> np.ndarray:
+    """prev warped into cur's pixels (all of cur, or the ``crop`` slices of it). Where the warp has
+    no source pixel, cur itself shows through (BORDER_TRANSPARENT), so the invalidated border
+    differences to exactly 0."""
+    if crop is None:
+        crop = (slice(0, cur.shape[0]), slice(0, cur.shape[1]))
+    if not camera.ok:
+        return prev[crop]
+    out = cur[crop].copy()
+    y0, x0 = crop[0].start, crop[1].start
+    to_crop = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+    matrix = camera.matrix if not (x0 or y0) else to_crop @ camera.matrix
+    cv2.warpPerspective(prev, matrix, (out.shape[1], out.shape[0]), dst=out, flags=cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_TRANSPARENT)
+    return out
 
 
 def _tracked_flows(prev: np.ndarray, cur: np.ndarray, points: np.ndarray, lk: dict) -> np.ndarray:
