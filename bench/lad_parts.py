@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from bench.frame_budget import frames_of
+from bench.frame_budget import frames_of  # noqa: I001
 from payload.config import Config, config_with
 from payload.detect.pipeline import Glad
 
