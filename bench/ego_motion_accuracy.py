@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from payload.config import Config
-from payload.detect.motion import estimate_homography
+from payload.detect.ego_motion import estimate
 from payload.synth.scene import Scene
 
 BASE = Config().detector.global_.motion
@@ -32,7 +32,7 @@ def main():
             s = width / 1920.0
             small = cv2.resize(grey, None, fx=s, fy=s, interpolation=interp)
             if prev is not None:
-                e = estimate_homography(prev, small, cfg)
+                e = estimate(prev, small, cfg)
                 scale = np.diag([s, s, 1.0])
                 h = np.linalg.inv(scale) @ e.matrix @ scale if e.ok else np.eye(3)
                 ms.append((time.perf_counter() - t0) * 1000)

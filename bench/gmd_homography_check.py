@@ -11,8 +11,8 @@ import numpy as np
 
 from payload.boxes import iou_matrix
 from payload.config import Config
-from payload.detect.motion import MotionDetector, estimate_homography
-from payload.detect.pipeline import GreyLevels, _to_full_frame
+from payload.detect.ego_motion import EgoMotion, GreyLevels, estimate
+from payload.detect.motion import MotionDetector
 from payload.synth.scene import Scene
 
 
@@ -27,11 +27,11 @@ def main():
                 for name, s in stats.items():
                     detector = MotionDetector(cfg, "GMD")
                     t0 = time.perf_counter()
-                    homography = None
                     if name == "shared640":
-                        estimate = estimate_homography(prev.motion, grey.motion, cfg)
-                        homography = _to_full_frame(estimate, grey.scale_xy(grey.motion))
-                    dets = detector.detect(prev.full, grey.full, homography=homography).detections
+                        camera = EgoMotion(cfg).estimate(prev, grey, fine=True)
+                    else:
+                        camera = estimate(prev.full, grey.full, cfg)
+                    dets = detector.detect(prev.full, grey.full, camera).detections
                     s["ms"].append((time.perf_counter() - t0) * 1000)
                     s["frames"] += 1
                     s["detections"] += len(dets)

@@ -15,8 +15,8 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.config import AppearanceConfig  # noqa: E402
 from payload.detect.appearance import AppearanceDetector  # noqa: E402
+from payload.detect.factory import builtin_model_path  # noqa: E402
 from payload.detect.onnx_model import OnnxModel  # noqa: E402
-from payload.models import builtin_model_path  # noqa: E402
 
 
 def timed(fn, repeat):

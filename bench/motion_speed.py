@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 
 from payload.config import MotionConfig
-from payload.detect.motion import MotionDetector, estimate_homography
+from payload.detect.ego_motion import estimate
+from payload.detect.motion import MotionDetector
 
 
 def frame_pair(w, h, seed=1):
@@ -57,11 +58,11 @@ def main():
 
 
 def bench_one(label, det, prev, cur, repeats):
-    result = det.detect(prev, cur)
-    est = result.homography
-    full = timed(lambda: det.detect(prev, cur), repeats)
-    homography = timed(lambda: estimate_homography(prev, cur, det.cfg), repeats)
-    given = timed(lambda: det.detect(prev, cur, homography=est), repeats)
+    est = estimate(prev, cur, det.cfg)
+    result = det.detect(prev, cur, est)
+    full = timed(lambda: det.detect(prev, cur, estimate(prev, cur, det.cfg)), repeats)
+    homography = timed(lambda: estimate(prev, cur, det.cfg), repeats)
+    given = timed(lambda: det.detect(prev, cur, est), repeats)
     print(
         f"{label:17s} detect {full[0]:6.2f} ms (p90 {full[1]:6.2f}) | homography {homography[0]:6.2f} ms | "
         f"detect with given H {given[0]:6.2f} ms | candidates={len(result.candidates)} "

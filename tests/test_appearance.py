@@ -10,9 +10,9 @@ from onnx_factories import bright_spot_detector
 from payload.boxes import iou_matrix
 from payload.config import AppearanceConfig, DetectorConfig
 from payload.detect.appearance import AppearanceDetector, letterbox
+from payload.detect.factory import build_detectors, builtin_model_path
 from payload.detect.onnx_model import OnnxModel
 from payload.errors import ModelError
-from payload.models import build_detectors, builtin_model_path
 
 
 @pytest.fixture

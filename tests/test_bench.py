@@ -14,10 +14,10 @@ from payload.boxes import tiles_xyxy
 from payload.cli import main
 from payload.config import AppearanceConfig, Config, config_with, load_config
 from payload.detect.appearance import AppearanceDetector
+from payload.detect.factory import builtin_model_path
 from payload.detect.onnx_model import OnnxModel
 from payload.detect.tiled import TiledDetector
 from payload.errors import ConfigError
-from payload.models import builtin_model_path
 from payload.types import GAD, GMD, LAD, LMD
 
 CLIP_FRAMES = 10

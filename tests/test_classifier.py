@@ -8,9 +8,9 @@ from onnx_factories import brightness_classifier
 
 from payload.config import ClassifierConfig, DetectorConfig
 from payload.detect.classifier import AppearanceClassifier
+from payload.detect.factory import build_detectors, builtin_model_path
 from payload.detect.onnx_model import OnnxModel
 from payload.detect.patches import crop_patches, patch_squares, patches_to_input
-from payload.models import build_detectors, builtin_model_path
 from payload.types import Detections
 
 

@@ -95,3 +95,25 @@ def test_scripts_and_tests_take_only_entry_points_and_formats_from_commands():
                     if name is None or not (name == "main" or name.startswith(("main_", "format_"))):
                         bad.append("%s: %s%s" % (os.path.relpath(path, REPO), module, "" if name is None else "." + name))
     assert not bad, "\n".join(bad)
+
+
+#: What the detectors (payload.detect) may use of the rest of the package: the layers below them.
+BELOW_DETECT = ("payload.boxes", "payload.config", "payload.errors", "payload.types")
+
+
+def _below_detect(module: str) -> bool:
+    return module.startswith("payload.detect.") or any(module == m or module.startswith(m + ".") for m in BELOW_DETECT)
+
+
+def test_the_layering_walk_sees_the_detectors_factory():
+    imported = {m for m, _ in imports_of(PACKAGE["payload.detect.pipeline"], "payload.detect.pipeline")}
+    assert "payload.detect.factory" in imported and "payload.detect.ego_motion" in imported
+
+
+@pytest.mark.parametrize("module", sorted(m for m in PACKAGE if m.startswith("payload.detect.")))
+def test_detectors_import_nothing_above_them(module):
+    # the shipped models, the service, the CLI, MAVLink sit above the detectors: the factory that
+    # builds GLAD from the config is payload.detect.factory, not payload.models
+    bad = sorted({m for m, _ in imports_of(PACKAGE[module], module)
+                  if (m == "payload" or m.startswith("payload.")) and not _below_detect(m)})
+    assert not bad, "%s imports %s, above the detectors" % (module, ", ".join(bad))

@@ -5,13 +5,9 @@ import numpy as np
 import pytest
 
 from payload.boxes import iou_matrix
-from payload.config import MotionConfig
-from payload.detect.motion import (
-    HomographyEstimate,
-    MotionDetector,
-    estimate_homography,
-    flow_spread,
-)
+from payload.config import Config, MotionConfig
+from payload.detect.ego_motion import CameraMotion, estimate
+from payload.detect.motion import FALLBACK_SCORE, MotionDetector, flow_spread
 
 W, H = 320, 240
 
@@ -64,6 +60,11 @@ def paste(img, patch, x, y):
     return out
 
 
+def detect(det, prev, cur, **kw):
+    """The detector on a frame pair, with the camera motion estimated on that pair."""
+    return det.detect(prev, cur, estimate(prev, cur, det.cfg), **kw)
+
+
 def mover_scene():
     """Frames with a mover flying (+9, +5) px in the image while the camera pans; its cur xyxy."""
     scene = Scene()
@@ -73,53 +74,13 @@ def mover_scene():
     return prev, cur, (149.0, 105.0, 185.0, 141.0)
 
 
-# --- homography -----------------------------------------------------------------------------
-
-
-def test_homography_recovers_known_warp():
-    prev = texture(H, W, 3, 2.0, 0, 255)
-    angle = np.deg2rad(1.5)
-    truth = np.array(
-        [
-            [1.02 * np.cos(angle), -np.sin(angle), 4.0],
-            [np.sin(angle), 1.02 * np.cos(angle), -3.0],
-            [2e-5, -1e-5, 1.0],
-        ]
-    )
-    cur = cv2.warpPerspective(prev, truth, (W, H), flags=cv2.INTER_LINEAR)
-    est = estimate_homography(prev, cur, MotionConfig())
-    assert est.ok
-    assert est.tracked >= 0.8 * 30 * 20 and est.inliers >= 0.8 * est.tracked
-    corners = np.array([[[0, 0]], [[W, 0]], [[W, H]], [[0, H]]], np.float64)
-    err = np.linalg.norm(
-        cv2.perspectiveTransform(corners, est.matrix) - cv2.perspectiveTransform(corners, truth), axis=2
-    )
-    assert err.max() < 0.5, err.ravel()
-    assert 3.0 < est.mean_shift_px < 10.0
-
-
-def test_homography_flat_image_gives_identity():
-    flat = np.full((H, W), 128, np.uint8)
-    est = estimate_homography(flat, flat.copy(), MotionConfig())
-    assert not est.ok
-    assert est.tracked < MotionConfig().min_tracked_points
-    np.testing.assert_array_equal(est.matrix, np.eye(3))
-
-
-def test_homography_rejects_bad_input():
-    with pytest.raises(ValueError, match="differ in size"):
-        estimate_homography(np.zeros((10, 10), np.uint8), np.zeros((10, 12), np.uint8), MotionConfig())
-    with pytest.raises(ValueError, match="2-D uint8"):
-        estimate_homography(np.zeros((10, 10, 3), np.uint8), np.zeros((10, 10, 3), np.uint8), MotionConfig())
-
-
 # --- detection on a moving camera -----------------------------------------------------------
 
 
 def test_moving_object_found_on_moving_ground():
     prev, cur, truth = mover_scene()
-    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
-    assert result.homography.ok
+    result = detect(MotionDetector(MotionConfig(), "GMD"), prev, cur)
+    assert result.camera.ok
     assert not result.too_noisy
     assert len(result.detections) == 1, result.candidates.xyxy
     assert iou(result.detections.xyxy[0], truth) > 0.5, result.detections.xyxy
@@ -131,8 +92,8 @@ def test_static_object_painted_on_ground_is_not_detected():
     scene = Scene()
     ground = paste(scene.ground, MOVER, 180, 140)  # moves with the ground
     prev, cur = scene.frames(ground, ground)
-    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
-    assert result.homography.ok
+    result = detect(MotionDetector(MotionConfig(), "GMD"), prev, cur)
+    assert result.camera.ok
     assert len(result.detections) == 0, result.detections.xyxy
 
 
@@ -140,15 +101,15 @@ def test_object_holding_still_in_the_image_moves_relative_to_the_ground():
     """A chase target matching the camera's motion: image flow 0, flow relative to the ground not."""
     prev, cur = Scene(pan_xy=(3.0, -2.0)).frames()
     prev, cur = paste(prev, MOVER, 140, 100), paste(cur, MOVER, 140, 100)
-    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
+    result = detect(MotionDetector(MotionConfig(), "GMD"), prev, cur)
     assert len(result.detections) == 1, result.candidates.xyxy
     assert iou(result.detections.xyxy[0], (140, 100, 176, 136)) > 0.5
 
 
 def test_camera_pan_alone_leaves_no_border_blobs():
     prev, cur = Scene(pan_xy=(12.0, 7.0)).frames()
-    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
-    assert result.homography.ok
+    result = detect(MotionDetector(MotionConfig(), "GMD"), prev, cur)
+    assert result.camera.ok
     assert len(result.candidates) == 0, result.candidates.xyxy
 
 
@@ -168,7 +129,7 @@ def test_jittering_texture_is_rejected_by_motion_classifier():
             ]
     ground_cur = paste(scene.ground, jittered, x0, y0)
     prev, cur = scene.frames(ground_prev, ground_cur)
-    result = MotionDetector(MotionConfig(), "GMD").detect(prev, cur)
+    result = detect(MotionDetector(MotionConfig(), "GMD"), prev, cur)
     region = (*scene.ground_to_cur(x0, y0), *scene.ground_to_cur(x0 + side, y0 + side))
     assert any(iou(box, region) > 0.2 for box in result.candidates.xyxy), result.candidates.xyxy
     assert len(result.detections) == 0, result.detections.xyxy
@@ -232,7 +193,7 @@ def test_area_and_aspect_limits():
         (10, 200, 40, 8),  # aspect 5: too elongated
         (250, 150, 24, 10),  # aspect 2.4: kept
     ]
-    result = MotionDetector(cfg, "GMD").detect(*appearing(rects))
+    result = detect(MotionDetector(cfg, "GMD"), *appearing(rects))
     boxes = sorted(map(tuple, result.candidates.xyxy.tolist()))
     assert boxes == [(60, 10, 72, 22), (250, 150, 274, 160)]
 
@@ -242,27 +203,27 @@ def test_nearby_boxes_merge_within_d1():
     near = appearing([(50, 50, 10, 10), (68, 52, 10, 10)])  # 8 px gap
     far = appearing([(50, 50, 10, 10), (100, 50, 10, 10)])  # 40 px gap
     det = MotionDetector(cfg, "GMD")
-    assert det.detect(*near).candidates.xyxy.tolist() == [[50, 50, 78, 62]]
-    assert len(det.detect(*far).candidates) == 2
+    assert detect(det, *near).candidates.xyxy.tolist() == [[50, 50, 78, 62]]
+    assert len(detect(det, *far).candidates) == 2
     det.update_config(MotionConfig(blur_px=0, close_iterations=0, merge_distance_px=0))
-    assert len(det.detect(*near).candidates) == 2
+    assert len(detect(det, *near).candidates) == 2
 
 
 def test_too_noisy_frame_gives_no_detections():
     rects = [(5 + 30 * i, 5 + 30 * j, 8, 8) for i in range(10) for j in range(7)]  # 70 blobs
-    result = MotionDetector(MotionConfig(blur_px=0, max_blobs=50), "GMD").detect(*appearing(rects))
+    result = detect(MotionDetector(MotionConfig(blur_px=0, max_blobs=50), "GMD"), *appearing(rects))
     assert result.too_noisy
     assert len(result.detections) == 0 and len(result.candidates) == 70
-    result = MotionDetector(MotionConfig(blur_px=0, max_blobs=100), "GMD").detect(*appearing(rects))
+    result = detect(MotionDetector(MotionConfig(blur_px=0, max_blobs=100), "GMD"), *appearing(rects))
     assert not result.too_noisy and len(result.candidates) == 70
 
 
 def test_threshold_follows_t2_alpha_t_a_beta_t_m():
     prev, cur, _ = mover_scene()
     cfg = MotionConfig(t2=5, alpha=1.0, beta=0.5)
-    result = MotionDetector(cfg, "GMD").detect(prev, cur)
+    result = detect(MotionDetector(cfg, "GMD"), prev, cur)
     t_a = np.abs(cur.astype(int) - prev.astype(int)).mean()
-    assert result.threshold == pytest.approx(5 + t_a + 0.5 * result.homography.mean_shift_px, rel=1e-6)
+    assert result.threshold == pytest.approx(5 + t_a + 0.5 * result.camera.mean_shift_px, rel=1e-6)
 
 
 # --- local crops ----------------------------------------------------------------------------
@@ -272,41 +233,103 @@ def test_local_crop_detections_in_full_frame_coordinates():
     prev, cur, truth = mover_scene()
     x0, y0 = 90, 60
     crop = (slice(y0, y0 + 150), slice(x0, x0 + 150))
-    result = MotionDetector(MotionConfig(), "LMD").detect(prev[crop], cur[crop], offset_xy=(x0, y0))
+    result = detect(MotionDetector(MotionConfig(), "LMD"), prev[crop], cur[crop], offset_xy=(x0, y0))
     assert len(result.detections) == 1
     assert iou(result.detections.xyxy[0], truth) > 0.5, result.detections.xyxy
     assert result.detections.module[0] == "LMD"
     assert all(iou(c, truth) > 0.5 for c in result.candidates.xyxy)
 
 
-def test_full_frame_homography_reused_for_a_crop():
+def test_full_frame_camera_motion_used_for_a_crop():
     prev, cur, truth = mover_scene()
-    full = estimate_homography(prev, cur, MotionConfig())
+    full = estimate(prev, cur, MotionConfig())
     x0, y0 = 90, 60
     crop = (slice(y0, y0 + 150), slice(x0, x0 + 150))
-    local = full.for_crop((x0, y0))
-    point_crop = np.array([[[20.0, 30.0]]])
-    np.testing.assert_allclose(
-        cv2.perspectiveTransform(point_crop, local.matrix) + [x0, y0],
-        cv2.perspectiveTransform(point_crop + [x0, y0], full.matrix),
-        atol=1e-9,
-    )
-    result = MotionDetector(MotionConfig(), "LMD").detect(prev[crop], cur[crop], (x0, y0), homography=local)
+    result = MotionDetector(MotionConfig(), "LMD").detect(prev[crop], cur[crop], full.for_crop((x0, y0)), (x0, y0))
     assert len(result.detections) == 1 and iou(result.detections.xyxy[0], truth) > 0.5
 
 
-def test_given_homography_is_used_as_is():
+def test_given_camera_motion_is_used_as_is():
     prev, cur, truth = mover_scene()
     det = MotionDetector(MotionConfig(), "GMD")
-    est = estimate_homography(prev, cur, det.cfg)
-    result = det.detect(prev, cur, homography=est)
-    assert result.homography is est
+    est = estimate(prev, cur, det.cfg)
+    result = det.detect(prev, cur, est)
+    assert result.camera is est
     assert iou(result.detections.xyxy[0], truth) > 0.5
     # identity on a panning camera: the whole textured ground "moves" and no longer aligns
-    still = det.detect(prev, cur, homography=HomographyEstimate.identity())
+    still = det.detect(prev, cur, CameraMotion.identity())
     assert len(still.candidates) != 1 or iou(still.candidates.xyxy[0], truth) < 0.5
 
 
 def test_unknown_module_rejected():
     with pytest.raises(ValueError, match="GMD"):
         MotionDetector(MotionConfig(), "XYZ")
+
+
+# --- time budget: candidates capped, large blobs tracked on a smaller copy ---------------------
+
+
+def movers_scene(strong, weak):
+    """A flat grey scene with ``weak`` faint textured movers and then ``strong`` dark ones, each
+    moving (+6, +3) px between the frames; the cur boxes of the strong ones."""
+    prev = np.full((H, W), 150, np.uint8)
+    cur = prev.copy()
+    boxes = []
+    for i in range(weak + strong):
+        x, y = 10 + 50 * (i % 6), 10 + 60 * (i // 6)
+        faint = (110 + MOVER[:24, :24] // 3).astype(np.uint8)  # 110-140 on 150
+        patch = faint if i < weak else MOVER[:24, :24]  # 0-90 on 150
+        prev = paste(prev, patch, x, y)
+        cur = paste(cur, patch, x + 6, y + 3)
+        if i >= weak:
+            boxes.append((x + 6, y + 3, x + 30, y + 27))
+    return prev, cur, boxes
+
+
+def test_candidates_over_the_cap_are_left_out_strongest_difference_first():
+    prev, cur, boxes = movers_scene(strong=3, weak=5)
+    still = CameraMotion(np.eye(3))  # a camera at rest: only the movers move
+    cfg = MotionConfig(t2=3, alpha=0.0, merge_distance_px=0, max_candidates=100)
+    full = MotionDetector(cfg, "GMD").detect(prev, cur, still)
+    assert len(full.candidates) == 8 and full.left_out == 0
+    assert len(full.detections) >= 6  # the faint movers pass the motion classifier too when judged
+    capped = MotionDetector(cfg.model_copy(update={"max_candidates": 3}), "GMD").detect(prev, cur, still)
+    assert len(capped.candidates) == 8 and capped.left_out == 5
+    assert len(capped.detections) == 3
+    assert all(max(iou(d, b) for b in boxes) > 0.5 for d in capped.detections.xyxy), capped.detections.xyxy
+
+
+def test_a_large_featureless_blob_is_tracked_at_its_true_speed():
+    # a smooth 60 px disc has no corners to track: it is judged on one vector of the whole blob,
+    # measured on a copy scaled to the window cap, and reported in full-frame pixels
+    prev = np.full((H, W), 150, np.uint8)
+    disc = np.full((H, W), 150, np.uint8)
+    cv2.circle(disc, (100, 120), 30, 40, -1)
+    disc = cv2.GaussianBlur(disc, (0, 0), 6)
+    prev = disc
+    cur = np.roll(disc, (0, 6), axis=(0, 1))  # moves 6 px right
+    for min_speed, found in ((4.0, True), (8.0, False)):
+        cfg = MotionConfig(alpha=0.0, min_speed_px=min_speed, corner_quality=0.9)
+        result = MotionDetector(cfg, "GMD").detect(prev, cur, CameraMotion(np.eye(3)))
+        assert len(result.candidates) == 1
+        assert len(result.detections) == int(found), (min_speed, result.detections)
+        if found:
+            assert result.detections.score[0] == pytest.approx(FALLBACK_SCORE)
+
+
+def test_a_wide_frame_is_segmented_at_half_size_and_judged_at_full_resolution():
+    # 1920x1080 panning textured ground, an 8 px dark mover: found, its box in full-frame pixels
+    m = 40
+    ground = texture(1080 + 2 * m, 1920 + 2 * m, 11, 3.0, 90, 200)
+    prev = np.ascontiguousarray(ground[m:m + 1080, m:m + 1920])
+    cur = np.ascontiguousarray(ground[m + 2:m + 2 + 1080, m + 3:m + 3 + 1920])  # content moves (-3, -2)
+    dot = texture(8, 8, 12, 0.8, 0, 40)
+    prev, cur = paste(prev, dot, 1200, 700), paste(cur, dot, 1207, 704)
+    cfg = Config().detector.global_.motion
+    result = detect(MotionDetector(cfg, "GMD"), prev, cur)
+    assert result.camera.ok and not result.too_noisy
+    assert len(result.detections) == 1, (result.candidates.xyxy, result.detections.xyxy)
+    x1, y1, x2, y2 = result.detections.xyxy[0]
+    # the blob of a frame difference covers where the mover was (aligned) and is: 1197-1215, 698-712
+    assert x1 <= 1197 and y1 <= 698 and x2 >= 1215 and y2 >= 712, result.detections.xyxy
+    assert x2 - x1 < 40 and y2 - y1 < 30, result.detections.xyxy

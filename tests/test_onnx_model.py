@@ -132,12 +132,12 @@ def test_runtime_never_imports_torch():
         "    except Exception:\n"
         "        pass\n"
         "from payload.config import DetectorConfig\n"
-        "from payload.models import build_detectors\n"
+        "from payload.detect.factory import build_detectors, builtin_model_path\n"
         "import os\n"
-        "if os.path.exists(payload.models.builtin_model_path('global')):\n"
+        "if os.path.exists(builtin_model_path('global')):\n"
         "    d = build_detectors(DetectorConfig())\n"
         "    d.global_appearance.detect(np.zeros((512, 640, 3), np.uint8))\n"
-        "print('torch' in sys.modules, 'payload.models' in sys.modules)\n"
+        "print('torch' in sys.modules, 'payload.detect.factory' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -152,3 +152,27 @@ def test_input_fixed_to_another_size_is_one_line(tmp_path):
         "detector.local.appearance.model: %s: input 'images' is fixed at [N,3,100,100], expected [N,3,320,320] "
         "(detector.local.appearance.input_wh [320, 320]) or dynamic H, W" % path)
     assert OnnxModel(path, warmup_hw=(100, 100)).input_shapes == {"images": ["N", 3, 100, 100]}  # the size it is fed
+
+
+def test_every_session_gets_the_process_thread_budget(detector_onnx):
+    # detector.threads 0: one fewer than the cores this process may use, at least one; no inter-op pool
+    cores = len(os.sched_getaffinity(0))
+    opts = OnnxModel(detector_onnx, threads=0).session.get_session_options()
+    assert opts.intra_op_num_threads == max(1, cores - 1)
+    assert opts.inter_op_num_threads == 1 and opts.execution_mode == onnxruntime.ExecutionMode.ORT_SEQUENTIAL
+    assert OnnxModel(detector_onnx, threads=3).session.get_session_options().intra_op_num_threads == 3
+
+
+def test_the_factory_builds_every_model_with_detector_threads(tmp_path):
+    from onnx_factories import brightness_classifier
+
+    from payload.config import Config, config_with
+    from payload.detect.factory import build_detectors
+
+    spot = bright_spot_detector(tmp_path / "spot.onnx")
+    cfg = config_with(Config(), **{"detector.threads": 2, "detector.global.appearance.model": spot,
+                                   "detector.local.appearance.model": spot, "detector.verifier.enabled": False,
+                                   "detector.classifier.model": brightness_classifier(tmp_path / "bright.onnx")})
+    models = build_detectors(cfg.detector)
+    sessions = [models.global_appearance.model, models.local_appearance.model, models.classifier.model]
+    assert [m.session.get_session_options().intra_op_num_threads for m in sessions] == [2, 2, 2]

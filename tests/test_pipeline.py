@@ -1,43 +1,10 @@
-"""GLAD pipeline internals touched by the speed work: shared grey levels and homographies estimated
-on a down-scaled copy, mapped back to full-frame pixels."""
+"""GLAD pipeline behaviour on tiny real ONNX models."""
 
 import cv2
 import numpy as np
 import pytest
 
 from payload.config import Config
-from payload.detect.motion import estimate_homography
-from payload.detect.pipeline import GreyLevels, _to_full_frame
-
-
-@pytest.mark.parametrize("size_wh, motion_wh, ego_wh", [
-    ((1920, 1080), (640, 360), (320, 180)),
-    ((640, 512), (640, 512), (320, 256)),
-    ((320, 256), (320, 256), (320, 256)),
-])
-def test_grey_levels_sizes_and_no_copy_when_narrow(size_wh, motion_wh, ego_wh):
-    grey = np.zeros((size_wh[1], size_wh[0]), np.uint8)
-    levels = GreyLevels.of(grey)
-    assert levels.full is grey
-    assert levels.motion.shape[::-1] == motion_wh and levels.ego.shape[::-1] == ego_wh
-    assert (levels.motion is grey) == (motion_wh == size_wh)  # a narrow frame is not copied
-    sx, sy = levels.scale_xy(levels.ego)
-    assert sx == pytest.approx(ego_wh[0] / size_wh[0]) and sy == pytest.approx(ego_wh[1] / size_wh[1])
-
-
-def test_homography_from_a_downscaled_copy_matches_the_true_shift(rng):
-    # a textured 1080p frame and the same frame shifted by (+12, -6) px: a known camera motion
-    texture = cv2.GaussianBlur(rng.integers(0, 256, (1140, 1980), dtype=np.uint8), (0, 0), 2.0)
-    prev = np.ascontiguousarray(texture[30:1110, 30:1950])
-    cur = np.ascontiguousarray(texture[36:1116, 18:1938])  # content moves right 12, up 6
-    a, b = GreyLevels.of(prev), GreyLevels.of(cur)
-    cfg = Config().detector.global_.motion
-    estimate = _to_full_frame(estimate_homography(a.motion, b.motion, cfg), b.scale_xy(b.motion))
-    assert estimate.ok
-    moved = cv2.perspectiveTransform(np.array([[[960.0, 540.0]], [[100.0, 900.0]]]), estimate.matrix)
-    np.testing.assert_allclose(moved.reshape(-1, 2) - [[960.0, 540.0], [100.0, 900.0]], [[12, -6], [12, -6]], atol=0.5)
-    assert estimate.mean_shift_px == pytest.approx(np.hypot(12, 6), abs=0.5)  # in full-frame pixels
-
 
 # --- which modules' hits the classifier must confirm (detector.classifier.modules) ---------------
 
@@ -47,8 +14,8 @@ def _spot_glad(tmp_path, **overrides):
     from onnx_factories import bright_spot_detector, brightness_classifier
 
     from payload.config import config_with
+    from payload.detect.factory import build_detectors
     from payload.detect.pipeline import Glad
-    from payload.models import build_detectors
 
     cfg = config_with(Config(), **{
         "detector.global.appearance.model": bright_spot_detector(tmp_path / "spot.onnx"),
@@ -304,3 +271,34 @@ def test_a_scan_hit_must_convince_the_classifier_as_a_lock_must(tmp_path, confir
     results = [glad.process(_tiny_spot_frame(i)) for i in range(8)]
     assert any(len(r.detections) for r in results) == found
     assert any(len(r.candidates) for r in results)  # the scan saw it either way
+
+
+# --- time budget: a frame with more motion candidates than GMD judges says so -------------------
+
+def _movers_frames(count, shift_xy=(6, 3)):
+    """Two frames of a still camera over dark textured ground with ``count`` grey textured movers
+    (all below the spot detector's 0.5 brightness: GAD finds nothing, so GMD runs)."""
+    from payload.types import Frame
+
+    rng = np.random.default_rng(4)
+    ground = cv2.GaussianBlur(rng.integers(0, 60, (384, 640), dtype=np.uint8), (0, 0), 2.0)
+    prev = np.repeat(ground[:, :, None], 3, axis=2)
+    cur = prev.copy()
+    for i in range(count):
+        x, y = 20 + 100 * (i % 6), 40 + 120 * (i // 6)
+        patch = rng.integers(60, 120, (20, 20, 1), dtype=np.uint8).repeat(3, axis=2)
+        prev[y:y + 20, x:x + 20] = patch
+        cur[y + shift_xy[1]:y + 20 + shift_xy[1], x + shift_xy[0]:x + 20 + shift_xy[0]] = patch
+    return Frame(prev, 0, 0, 0), Frame(cur, 1, 33_000_000, 0)
+
+
+@pytest.mark.parametrize("cap, left_out", [(100, 0), (3, 7)])
+def test_gmd_over_its_candidate_cap_judges_the_cap_and_reports_the_frame_degraded(tmp_path, cap, left_out):
+    glad = _spot_glad(tmp_path, **{"detector.global.motion.enabled": True,
+                                   "detector.global.motion.max_candidates": cap,
+                                   "detector.global.motion.merge_distance_px": 0})
+    first, second = _movers_frames(10)
+    assert glad.process(first).degraded == {}
+    result = glad.process(second)
+    assert "GMD" in result.timings_ms
+    assert result.degraded == ({"GMD": left_out} if left_out else {})

@@ -2,10 +2,11 @@ import numpy as np
 import pytest
 
 from payload.config import SearchRegionConfig, SwitcherConfig
+from payload.detect.ego_motion import CameraMotion
 from payload.detect.region import SearchRegion
 from payload.detect.switcher import GLOBAL, LOCAL, Switcher
 
-I3 = np.eye(3)
+I3 = CameraMotion(np.eye(3))
 
 
 def test_region_grows_by_k_per_miss_and_resets_on_hit():
@@ -37,13 +38,13 @@ def test_region_is_clipped_to_the_image_and_keeps_its_size():
 def test_homography_carries_the_centre():
     region = SearchRegion(SearchRegionConfig())
     region.start((100.0, 100.0), (10, 10), 0.9)
-    shift = np.array([[1.0, 0, 30], [0, 1.0, -20], [0, 0, 1]])
+    shift = CameraMotion(np.array([[1.0, 0, 30], [0, 1.0, -20], [0, 0, 1]]))
     assert region.predict(shift, 1 / 30) == pytest.approx((130.0, 80.0))
 
 
 def test_kalman_learns_the_targets_own_velocity_under_camera_motion():
     region = SearchRegion(SearchRegionConfig())
-    pan = np.array([[1.0, 0, -12], [0, 1.0, 3], [0, 0, 1]])  # camera pans: ground moves (-12, +3)/frame
+    pan = CameraMotion(np.array([[1.0, 0, -12], [0, 1.0, 3], [0, 0, 1]]))  # camera pans: ground moves (-12, +3)/frame
     pos = np.array([400.0, 300.0])
     region.start(tuple(pos), (10, 10), 0.9)
     for _ in range(20):
@@ -64,7 +65,7 @@ def test_kalman_learns_the_targets_own_velocity_under_camera_motion():
 def test_fixed_region_stays_at_last_box():
     region = SearchRegion(SearchRegionConfig(adaptive=False))
     region.start((400.0, 300.0), (10, 10), 0.9)
-    shift = np.array([[1.0, 0, 50], [0, 1.0, 0], [0, 0, 1]])
+    shift = CameraMotion(np.array([[1.0, 0, 50], [0, 1.0, 0], [0, 0, 1]]))
     assert region.predict(shift, 1 / 30) == (400.0, 300.0)
     region.miss()
     box = region.region_xyxy((1920, 1080))

@@ -6,10 +6,10 @@ import pytest
 from onnx_factories import bright_spot_detector, brightness_classifier, last_row_verifier
 
 from payload.config import Config, config_with
+from payload.detect.factory import build_detectors, builtin_model_path, check_verifier
 from payload.detect.onnx_model import OnnxModel
 from payload.detect.verify import FEATURES, N_FEATURES, LockFeatures, LockVerifier
 from payload.errors import ConfigError, ModelError
-from payload.models import build_detectors, check_verifier
 from payload.types import Frame
 
 P = FEATURES.index("drone_p")
@@ -131,7 +131,7 @@ def test_detector_model_given_as_verifier_is_refused(tmp_path):
 
 
 def test_shipped_verifier_meets_the_contract():
-    model = OnnxModel(build_detectors.__globals__["builtin_model_path"]("verifier"),
+    model = OnnxModel(builtin_model_path("verifier"),
                       expected_inputs={"tracks": (None, None, N_FEATURES)})
     check_verifier(model)
     v = LockVerifier(model, min_frames=1)

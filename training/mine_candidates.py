@@ -30,6 +30,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.config import AppearanceConfig, MotionConfig  # noqa: E402
 from payload.detect.appearance import AppearanceDetector  # noqa: E402
+from payload.detect.ego_motion import estimate  # noqa: E402
 from payload.detect.motion import MotionDetector  # noqa: E402
 from payload.detect.onnx_model import OnnxModel  # noqa: E402
 from payload.detect.patches import crop_patches  # noqa: E402
@@ -87,10 +88,12 @@ class Miner:
         for x0, y0, x1, y1 in regions:
             proposals.append((LAD, self.lad.detect(img[y0:y1, x0:x1], offset_xy=(x0, y0)).xyxy))
             if pgrey is not None:
-                m = self.lmd.detect(pgrey[y0:y1, x0:x1], grey[y0:y1, x0:x1], offset_xy=(x0, y0))
+                p, g = pgrey[y0:y1, x0:x1], grey[y0:y1, x0:x1]
+                m = self.lmd.detect(p, g, estimate(p, g, self.lmd.cfg), offset_xy=(x0, y0))
                 proposals.append((LMD, m.candidates.xyxy))
         if pgrey is not None:
-            proposals.append((GMD, self.gmd.detect(pgrey, grey).candidates.xyxy))
+            camera = estimate(pgrey, grey, self.gmd.cfg)
+            proposals.append((GMD, self.gmd.detect(pgrey, grey, camera).candidates.xyxy))
         pos = [jitter(rng, gt)] if gt is not None else []
         for module, boxes in proposals:
             neg = []

@@ -1,29 +1,31 @@
 """The GLAD motion detector (paper Section IV): GMD on the full frame, LMD in the search region.
 
-Two grey frames in, moving-object boxes out, in three steps:
+Two grey frames and the camera motion between them (payload.detect.ego_motion) in, moving-object
+boxes out, in two steps:
 
-1. Motion compensation: a uniform grid of ``grid_wh`` key points over the previous frame,
-   pyramidal Lucas-Kanade into the current one, a RANSAC homography H (previous -> current
-   pixels). Too few tracked points or a degenerate fit -> identity, ``ok=False``.
-2. Segmentation: E = |blur(cur) - blur(warp_H(prev))| (saturating uint8), binarised with
+1. Segmentation: E = |blur(cur) - blur(warp_H(prev))| (saturating uint8), binarised with
    T2 + alpha*T_A + beta*T_M, opened and closed (3x3), connected blobs (outer contours), area and
-   aspect limits, boxes closer than D1 merged.
-3. Motion classifier: Shi-Tomasi corners of each candidate, their Lucas-Kanade flow relative
-   to the background motion; incoherent (swaying trees, glitter, alignment errors) or too slow
-   candidates are rejected. The CNN appearance classifier runs later, elsewhere.
+   aspect limits, boxes closer than D1 merged. Frames wider than MAX_SEGMENT_WIDTH_PX (1080p) are
+   segmented on a half-size copy (blur, opening and closing scaled to match).
+2. Motion classifier, at full resolution: Shi-Tomasi corners of each candidate, their
+   Lucas-Kanade flow relative to the background motion; incoherent (swaying trees, glitter,
+   alignment errors) or too slow candidates are rejected. At most ``max_candidates`` a frame, the
+   strongest differences first (the time budget). The CNN appearance classifier runs later,
+   elsewhere.
 
 Every threshold comes from ``MotionConfig``.
 """
 
 import logging
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Tuple
 
 import cv2
 import numpy as np
 
 from payload.boxes import merge_boxes
 from payload.config import MotionConfig
+from payload.detect.ego_motion import CameraMotion, check_pair, lk_params
 from payload.types import GMD, LMD, Detections
 
 log = logging.getLogger(__name__)
@@ -35,40 +37,14 @@ MIN_CORNERS = 3
 MAX_FORWARD_BACKWARD_PX = 1.0
 #: Score of a candidate accepted on its single blob-level flow vector (no coherence evidence).
 FALLBACK_SCORE = 0.25
-#: A frame-to-frame homography scaling area by more than this (or less than its inverse) is
-#: not camera motion between two frames but a broken fit.
-MAX_AREA_SCALE = 4.0
-
+#: Frames wider than this are segmented (warp, difference, threshold, morphology, blobs) on a
+#: half-size copy, and each candidate is judged at full resolution on its own crop: at 1080p the
+#: full-frame warp, blurs and closing were ~2/3 of GMD's time (docs/results.md "Speed").
+MAX_SEGMENT_WIDTH_PX = 1280
+#: The blob-level flow vector's LK window at most (px, odd): a larger blob is tracked on a copy
+#: scaled down to fit. LK's cost grows with the window's area: a 100 px window took ~50 ms.
+MAX_BOX_WINDOW_PX = 31
 _KERNEL_3X3 = np.ones((3, 3), np.uint8)
-
-
-@dataclass(frozen=True)
-class HomographyEstimate:
-    """Camera motion between two frames."""
-
-    matrix: np.ndarray  # 3x3 float64, maps previous-frame pixels -> current-frame pixels
-    tracked: int  # grid key points tracked by LK
-    inliers: int  # RANSAC inliers (0 when the fit failed)
-    mean_shift_px: float  # T_M: mean key-point displacement (inliers if ok, else all tracked)
-    ok: bool  # False -> the identity fallback was used
-
-    @classmethod
-    def identity(cls, tracked: int = 0, mean_shift_px: float = 0.0) -> "HomographyEstimate":
-        return cls(np.eye(3), int(tracked), 0, float(mean_shift_px), False)
-
-    def for_crop(self, offset_xy: Tuple[float, float]) -> "HomographyEstimate":
-        """The same camera motion in the pixels of a crop at ``offset_xy`` of both frames.
-
-        Lets the local motion detector reuse the full-frame estimate (which the search region
-        needs anyway) instead of tracking its own grid: H_crop = T(-offset) . H . T(offset).
-        """
-        dx, dy = float(offset_xy[0]), float(offset_xy[1])
-        to_full = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
-        to_crop = np.array([[1.0, 0.0, -dx], [0.0, 1.0, -dy], [0.0, 0.0, 1.0]])
-        matrix = to_crop @ self.matrix @ to_full
-        return HomographyEstimate(
-            matrix / matrix[2, 2], self.tracked, self.inliers, self.mean_shift_px, self.ok
-        )
 
 
 @dataclass(frozen=True)
@@ -83,69 +59,10 @@ class MotionResult:
 
     detections: Detections  # accepted moving objects, full-frame xyxy, module GMD or LMD
     candidates: Detections  # every blob after area/aspect/merge, before the motion classifier (score 0)
-    homography: HomographyEstimate
+    camera: CameraMotion  # the camera motion the frames were aligned with
     threshold: float  # the binarisation threshold used: T2 + alpha*T_A + beta*T_M
     too_noisy: bool  # more than max_blobs blobs -> no detections
-
-
-def _lk_params(cfg: MotionConfig) -> dict:
-    return dict(
-        winSize=(cfg.lk_window_px, cfg.lk_window_px),
-        maxLevel=cfg.lk_levels,
-        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, cfg.lk_iterations, 0.01),
-    )
-
-
-def grid_points(size_wh: Tuple[int, int], grid_wh: Tuple[int, int]) -> np.ndarray:
-    """Key points at the centres of a ``grid_wh`` grid of cells over an image: (N, 1, 2) float32."""
-    w, h = size_wh
-    xs = (np.arange(grid_wh[0], dtype=np.float32) + 0.5) * (w / float(grid_wh[0]))
-    ys = (np.arange(grid_wh[1], dtype=np.float32) + 0.5) * (h / float(grid_wh[1]))
-    gx, gy = np.meshgrid(xs, ys)
-    return np.stack([gx.ravel(), gy.ravel()], axis=1).reshape(-1, 1, 2)
-
-
-def _plausible(matrix: np.ndarray, size_wh: Tuple[int, int]) -> bool:
-    """Whether H maps the image to a convex quadrilateral of similar area (not a broken fit)."""
-    if matrix is None or not np.all(np.isfinite(matrix)) or abs(matrix[2, 2]) < 1e-12:
-        return False
-    w, h = size_wh
-    corners = np.array([[[0, 0]], [[w, 0]], [[w, h]], [[0, h]]], np.float64)
-    mapped = cv2.perspectiveTransform(corners, matrix)
-    if not np.all(np.isfinite(mapped)):
-        return False
-    quad = mapped.astype(np.float32)
-    if not cv2.isContourConvex(quad):
-        return False
-    scale = cv2.contourArea(quad) / float(w * h)
-    return 1.0 / MAX_AREA_SCALE <= scale <= MAX_AREA_SCALE
-
-
-def estimate_homography(
-    prev_grey: np.ndarray, cur_grey: np.ndarray, cfg: MotionConfig, _points: Optional[np.ndarray] = None
-) -> HomographyEstimate:
-    """Camera motion prev -> cur from a uniform key-point grid, pyramidal LK and RANSAC."""
-    _check_pair(prev_grey, cur_grey)
-    h, w = prev_grey.shape
-    points = grid_points((w, h), cfg.grid_wh) if _points is None else _points
-    moved, status, _ = cv2.calcOpticalFlowPyrLK(prev_grey, cur_grey, points, None, **_lk_params(cfg))
-    good = status.ravel() == 1
-    src = points[good].reshape(-1, 2)
-    dst = moved[good].reshape(-1, 2)
-    tracked = len(src)
-    shift = np.hypot(*(dst - src).T) if tracked else np.zeros(0)
-    mean_shift = float(shift.mean()) if tracked else 0.0
-    if tracked < cfg.min_tracked_points:
-        log.debug("homography=identity reason=few_points tracked=%d min=%d", tracked, cfg.min_tracked_points)
-        return HomographyEstimate.identity(tracked, mean_shift)
-    matrix, inlier_mask = cv2.findHomography(src, dst, cv2.RANSAC, cfg.ransac_reproj_px)
-    inliers = int(inlier_mask.sum()) if inlier_mask is not None else 0
-    if inliers < 4 or not _plausible(matrix, (w, h)):
-        log.debug("homography=identity reason=degenerate tracked=%d inliers=%d", tracked, inliers)
-        return HomographyEstimate.identity(tracked, mean_shift)
-    matrix = matrix / matrix[2, 2]
-    mean_shift = float(shift[inlier_mask.ravel() == 1].mean())
-    return HomographyEstimate(matrix.astype(np.float64), tracked, inliers, mean_shift, True)
+    left_out: int = 0  # candidates the motion classifier did not judge (over max_candidates): degraded
 
 
 def flow_spread(flows_xy: np.ndarray) -> Tuple[float, float, float]:
@@ -170,15 +87,6 @@ def flow_spread(flows_xy: np.ndarray) -> Tuple[float, float, float]:
     return float(min(max(1.0 - resultant, 0.0), 1.0)), speed_spread, mean_speed
 
 
-def _check_pair(prev_grey: np.ndarray, cur_grey: np.ndarray) -> None:
-    for name, img in (("prev_grey", prev_grey), ("cur_grey", cur_grey)):
-        if not isinstance(img, np.ndarray) or img.ndim != 2 or img.dtype != np.uint8:
-            got = f"{img.dtype} {img.shape}" if isinstance(img, np.ndarray) else type(img).__name__
-            raise ValueError(f"motion: {name} must be a 2-D uint8 grey image, got {got}")
-    if prev_grey.shape != cur_grey.shape:
-        raise ValueError(f"motion: prev_grey {prev_grey.shape} and cur_grey {cur_grey.shape} differ in size")
-
-
 class MotionDetector:
     """GMD (module 'GMD', full frame) or LMD (module 'LMD', search-region crop)."""
 
@@ -187,97 +95,104 @@ class MotionDetector:
             raise ValueError(f"MotionDetector: module must be {GMD!r} or {LMD!r}, got {module!r}")
         self.module = module
         self.cfg = cfg
-        self._grid_key = None  # (size_wh, grid_wh) of the cached grid
-        self._grid = None
 
     def update_config(self, cfg: MotionConfig) -> None:
         """Apply new thresholds from the next call on (hot reload)."""
         self.cfg = cfg
 
-    def _grid_for(self, size_wh: Tuple[int, int]) -> np.ndarray:
-        key = (size_wh, tuple(self.cfg.grid_wh))
-        if key != self._grid_key:
-            self._grid = grid_points(size_wh, self.cfg.grid_wh)
-            self._grid_key = key
-        return self._grid
-
     def detect(
         self,
         prev_grey: np.ndarray,
         cur_grey: np.ndarray,
+        camera: CameraMotion,
         offset_xy: Tuple[float, float] = (0, 0),
-        homography: Optional[HomographyEstimate] = None,
     ) -> MotionResult:
         """Moving objects between two grey frames of the same size.
 
         prev/cur are the full frame, or the search-region crop of both frames at the same
         coordinates; ``offset_xy`` is the crop's top-left in the full frame, added to every box.
-        ``homography``: one already estimated for these two images (skips re-estimation).
+        ``camera``: the camera motion between these two images, in their pixels (a crop's:
+        ``CameraMotion.for_crop``).
         """
         cfg = self.cfg
-        _check_pair(prev_grey, cur_grey)
+        check_pair(prev_grey, cur_grey)
         h, w = cur_grey.shape
-        if homography is None:
-            homography = estimate_homography(prev_grey, cur_grey, cfg, self._grid_for((w, h)))
-
-        # prev warped into cur's pixels; where the warp has no source pixel, cur itself shows
-        # through (BORDER_TRANSPARENT), so the invalidated border differences to exactly 0.
-        if homography.ok:
-            aligned = cur_grey.copy()
-            cv2.warpPerspective(
-                prev_grey,
-                homography.matrix,
-                (w, h),
-                dst=aligned,
-                flags=cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_TRANSPARENT,
-            )
+        step = 2 if w > MAX_SEGMENT_WIDTH_PX else 1
+        if step == 1:
+            seg_prev, seg_cur, seg_camera = prev_grey, cur_grey, camera
         else:
-            aligned = prev_grey
+            size = (w // step, h // step)
+            seg_prev = cv2.resize(prev_grey, size, interpolation=cv2.INTER_AREA)
+            seg_cur = cv2.resize(cur_grey, size, interpolation=cv2.INTER_AREA)
+            seg_camera = camera.at_scale(1.0 / step)
+        sh, sw = seg_cur.shape
+        aligned = _aligned(seg_prev, seg_cur, seg_camera)
 
         # T_A: lighting change, mean |raw cur - raw prev| without compensation.
-        t_a = cv2.norm(cur_grey, prev_grey, cv2.NORM_L1) / float(w * h)
-        threshold = cfg.t2 + cfg.alpha * t_a + cfg.beta * homography.mean_shift_px
-        if cfg.blur_px:
-            k = (cfg.blur_px, cfg.blur_px)
-            diff = cv2.absdiff(cv2.GaussianBlur(cur_grey, k, 0), cv2.GaussianBlur(aligned, k, 0))
+        t_a = cv2.norm(seg_cur, seg_prev, cv2.NORM_L1) / float(sw * sh)
+        threshold = cfg.t2 + cfg.alpha * t_a + cfg.beta * camera.mean_shift_px
+        blur_px = cfg.blur_px if step == 1 else (cfg.blur_px // step) | 1  # 5 -> 3 on the half-size copy
+        if blur_px > 1:
+            k = (blur_px, blur_px)
+            diff = cv2.absdiff(cv2.GaussianBlur(seg_cur, k, 0), cv2.GaussianBlur(aligned, k, 0))
         else:
-            diff = cv2.absdiff(cur_grey, aligned)
+            diff = cv2.absdiff(seg_cur, aligned)
         # uint8 threshold compares E > floor(threshold): the same as E > threshold for integer E.
         _, mask = cv2.threshold(diff, threshold, 255, cv2.THRESH_BINARY)
-        if cfg.open_iterations:
-            mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _KERNEL_3X3, iterations=cfg.open_iterations)
-        if cfg.close_iterations:
-            mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, _KERNEL_3X3, iterations=cfg.close_iterations)
+        open_iterations, close_iterations = (-(-n // step) for n in (cfg.open_iterations, cfg.close_iterations))
+        if open_iterations:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _KERNEL_3X3, iterations=open_iterations)
+        if close_iterations:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, _KERNEL_3X3, iterations=close_iterations)
 
-        boxes, too_noisy = self._blobs(mask)
+        boxes, too_noisy = self._blobs(mask, step)
         dx, dy = float(offset_xy[0]), float(offset_xy[1])
         candidates = Detections(boxes, np.zeros(len(boxes), np.float32), self.module)
         if too_noisy or not len(boxes):
             return MotionResult(
-                Detections.empty(), candidates.shifted(dx, dy), homography, threshold, too_noisy
+                Detections.empty(), candidates.shifted(dx, dy), camera, threshold, too_noisy
             )
 
-        scores = self._classify(aligned, cur_grey, mask, boxes)
+        judged, left_out = self._strongest(boxes, diff, mask, step)
+        if step == 1:
+            scores = self._classify(lambda crop: aligned[crop], cur_grey, mask, step, judged)
+        else:  # prev aligned at full resolution only around each candidate judged
+            scores = self._classify(lambda crop: _aligned(prev_grey, cur_grey, camera, crop), cur_grey, mask, step, judged)
         keep = scores > 0
-        detections = Detections(boxes[keep], scores[keep], self.module)
+        detections = Detections(judged[keep], scores[keep], self.module)
         if log.isEnabledFor(logging.DEBUG):
             log.debug(
-                "module=%s threshold=%.1f t_a=%.2f t_m=%.2f homography_ok=%s candidates=%d accepted=%d",
+                "module=%s threshold=%.1f t_a=%.2f t_m=%.2f homography_ok=%s candidates=%d left_out=%d accepted=%d",
                 self.module,
                 threshold,
                 t_a,
-                homography.mean_shift_px,
-                homography.ok,
+                camera.mean_shift_px,
+                camera.ok,
                 len(boxes),
+                left_out,
                 int(keep.sum()),
             )
         return MotionResult(
-            detections.shifted(dx, dy), candidates.shifted(dx, dy), homography, threshold, False
+            detections.shifted(dx, dy), candidates.shifted(dx, dy), camera, threshold, False, left_out
         )
 
-    def _blobs(self, mask: np.ndarray) -> Tuple[np.ndarray, bool]:
+    def _strongest(self, boxes: np.ndarray, diff: np.ndarray, mask: np.ndarray, step: int) -> Tuple[np.ndarray, int]:
+        """The candidates the motion classifier judges: all of them up to max_candidates, else the
+        max_candidates with the largest mean frame difference over their foreground (a moving
+        drone differs strongly; misaligned texture and swaying leaves only just pass the
+        threshold); and how many were left out."""
+        cap = self.cfg.max_candidates
+        if len(boxes) <= cap:
+            return boxes, 0
+        strength = np.empty(len(boxes), np.float64)
+        for i, (x1, y1, x2, y2) in enumerate(boxes.astype(np.int32) // step):
+            strength[i] = cv2.mean(diff[y1:y2, x1:x2], mask=mask[y1:y2, x1:x2])[0]
+        order = np.argsort(-strength, kind="stable")[:cap]
+        return boxes[np.sort(order)], len(boxes) - cap
+
+    def _blobs(self, mask: np.ndarray, step: int) -> Tuple[np.ndarray, bool]:
         """Candidate boxes (crop xyxy) from the cleaned mask, and whether the frame is too noisy.
+        ``step``: the mask's pixel is step x step image pixels (areas and boxes are in image pixels).
 
         Blobs are 8-connected foreground regions (holes inside count as the blob). Area (its
         foreground pixel count) and aspect (longest/shortest box side) limits apply
@@ -293,14 +208,16 @@ class MotionDetector:
         bw = rects[:, 2].astype(np.float32)
         bh = rects[:, 3].astype(np.float32)
         aspect = np.maximum(bw, bh) / np.maximum(np.minimum(bw, bh), 1.0)
+        pixel_area = float(step * step)
         # A box smaller than the minimum area cannot hold enough pixels: skip counting them.
-        keep = (bw * bh >= cfg.min_blob_area_px) & (aspect <= cfg.max_aspect)
+        keep = (bw * bh * pixel_area >= cfg.min_blob_area_px) & (aspect <= cfg.max_aspect)
         for i in np.flatnonzero(keep):
             x, y, rw, rh = rects[i]
-            area = cv2.countNonZero(
-                mask[y : y + rh, x : x + rw]
-            )  # pixels of the blob (and of any neighbour in its box)
+            # pixels of the blob (and of any neighbour in its box)
+            area = cv2.countNonZero(mask[y : y + rh, x : x + rw]) * pixel_area
             keep[i] = cfg.min_blob_area_px <= area <= cfg.max_blob_area_px
+        rects = rects * step
+        bw, bh = bw * step, bh * step
         x = rects[keep, 0].astype(np.float32)
         y = rects[keep, 1].astype(np.float32)
         boxes = np.stack([x, y, x + bw[keep], y + bh[keep]], axis=1).reshape(-1, 4)
@@ -312,14 +229,16 @@ class MotionDetector:
         return boxes, False
 
     def _classify(
-        self, aligned: np.ndarray, cur: np.ndarray, mask: np.ndarray, boxes: np.ndarray
+        self, aligned_crop, cur: np.ndarray, mask: np.ndarray, step: int, boxes: np.ndarray
     ) -> np.ndarray:
         """Motion plausibility per candidate box; 0 = rejected by the motion classifier.
 
-        Corners are taken in ``aligned`` (prev warped by H into cur's pixels), so their LK flow
+        Corners are taken in the aligned previous frame (prev warped by H into cur's pixels;
+        ``aligned_crop(slices)`` gives it for a crop of cur), so their LK flow
         into cur is already relative to the background: d = p_cur - H(p_prev). A static object
         painted on moving ground has d ~ 0. Corners are searched only on the blob's foreground
-        pixels inside the box, so background texture caught in the box does not dilute the flow.
+        pixels inside the box (``mask``, whose pixel is step x step image pixels), so background
+        texture caught in the box does not dilute the flow.
         Tracks failing the forward-backward check are dropped (mostly background corners that
         the mover covers in cur). A candidate with fewer than MIN_CORNERS tracked corners is judged on one LK vector of
         the whole box (window = box size): accepted with FALLBACK_SCORE if it moves >= T5.
@@ -327,15 +246,18 @@ class MotionDetector:
         cfg = self.cfg
         h, w = cur.shape
         margin = cfg.lk_window_px + 8  # room for the LK window around the box
-        lk = _lk_params(cfg)
+        lk = lk_params(cfg)
         scores = np.zeros(len(boxes), np.float32)
         for i, (x1, y1, x2, y2) in enumerate(boxes.astype(np.int32)):
             cx1, cy1 = max(0, x1 - margin), max(0, y1 - margin)
             cx2, cy2 = min(w, x2 + margin), min(h, y2 + margin)
-            prev_crop = aligned[cy1:cy2, cx1:cx2]
+            prev_crop = aligned_crop((slice(cy1, cy2), slice(cx1, cx2)))
             cur_crop = cur[cy1:cy2, cx1:cx2]
             fg = np.zeros_like(prev_crop)
-            fg[y1 - cy1 : y2 - cy1, x1 - cx1 : x2 - cx1] = mask[y1:y2, x1:x2]
+            blob = mask[y1 // step : y2 // step, x1 // step : x2 // step]
+            if step > 1:
+                blob = cv2.resize(blob, (x2 - x1, y2 - y1), interpolation=cv2.INTER_NEAREST)
+            fg[y1 - cy1 : y2 - cy1, x1 - cx1 : x2 - cx1] = blob
             corners = cv2.goodFeaturesToTrack(
                 prev_crop, cfg.max_corners, cfg.corner_quality, cfg.corner_min_distance_px, mask=fg
             )
@@ -382,11 +304,35 @@ class MotionDetector:
         """Relative speed (px) of the whole box by one LK vector at its centre; 0 if LK loses it."""
         x1, y1, x2, y2 = box
         side = int(max(x2 - x1, y2 - y1, self.cfg.lk_window_px)) | 1  # odd, covers the blob
-        centre = np.array([[[(x1 + x2) / 2.0, (y1 + y2) / 2.0]]], np.float32)
-        lk = _lk_params(self.cfg)
+        scale = 1.0
+        if side > MAX_BOX_WINDOW_PX:  # the same blob on a smaller copy, within the window cap
+            scale = MAX_BOX_WINDOW_PX / float(side)
+            size = (max(1, int(round(prev_crop.shape[1] * scale))), max(1, int(round(prev_crop.shape[0] * scale))))
+            prev_crop = cv2.resize(prev_crop, size, interpolation=cv2.INTER_AREA)
+            cur_crop = cv2.resize(cur_crop, size, interpolation=cv2.INTER_AREA)
+            side = MAX_BOX_WINDOW_PX
+        centre = np.array([[[(x1 + x2) / 2.0 * scale, (y1 + y2) / 2.0 * scale]]], np.float32)
+        lk = lk_params(self.cfg)
         lk["winSize"] = (side, side)
         flows = _tracked_flows(prev_crop, cur_crop, centre, lk)
-        return float(np.hypot(*flows[0])) if len(flows) else 0.0
+        return float(np.hypot(*flows[0])) / scale if len(flows) else 0.0
+
+
+def _aligned(prev: np.ndarray, cur: np.ndarray, camera: CameraMotion, crop=None) -> np.ndarray:
+    """prev warped into cur's pixels (all of cur, or the ``crop`` slices of it). Where the warp has
+    no source pixel, cur itself shows through (BORDER_TRANSPARENT), so the invalidated border
+    differences to exactly 0."""
+    if crop is None:
+        crop = (slice(0, cur.shape[0]), slice(0, cur.shape[1]))
+    if not camera.ok:
+        return prev[crop]
+    out = cur[crop].copy()
+    y0, x0 = crop[0].start, crop[1].start
+    to_crop = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+    matrix = camera.matrix if not (x0 or y0) else to_crop @ camera.matrix
+    cv2.warpPerspective(prev, matrix, (out.shape[1], out.shape[0]), dst=out, flags=cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_TRANSPARENT)
+    return out
 
 
 def _tracked_flows(prev: np.ndarray, cur: np.ndarray, points: np.ndarray, lk: dict) -> np.ndarray:

@@ -65,6 +65,25 @@ def providers_for(backend: str, fp16: bool, engine_cache_dir: Optional[str]) -> 
     return out
 
 
+def intra_op_threads(threads: int) -> int:
+    """ONNX Runtime intra-op threads of every session in the process: ``threads`` (detector.threads),
+    or with 0 one fewer than the cores this process may run on, at least 1.
+
+    The sessions run one after another on the detection thread, while capture and decoding run on
+    their own: a pool as wide as the machine makes each inference wait for a core the decoder
+    holds. On this 2-core build machine, V_DRONE_086: one thread gave the local stage 23-24 ms
+    against 25-27 ms and the region's camera motion 2.8 ms against 6.5 ms (medians, load ~8);
+    docs/results.md "Speed".
+    """
+    if threads:
+        return int(threads)
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    return max(1, cores - 1)
+
+
 def _file_digest(path: str) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -123,8 +142,10 @@ class OnnxModel:
             os.makedirs(cache_dir, exist_ok=True)
         providers = providers_for(backend, fp16, cache_dir)
         opts = ort.SessionOptions()
-        if threads:
-            opts.intra_op_num_threads = int(threads)
+        opts.intra_op_num_threads = intra_op_threads(threads)
+        # one graph node at a time: no inter-op pool beside the intra-op one
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        opts.inter_op_num_threads = 1
         # FATAL only: ORT's errors reach us as exceptions, which the service reports once a summary
         # interval; at ERROR it would also print each one itself (a line a frame when every frame fails).
         opts.log_severity_level = 4

@@ -24,7 +24,9 @@ import numpy as np
 
 from payload.config import DetectorConfig, section_changes
 from payload.detect.classifier import LockCheck
-from payload.detect.motion import HomographyEstimate, MotionDetector, estimate_homography
+from payload.detect.ego_motion import EgoMotion, GreyLevels
+from payload.detect.factory import DetectorModels, build_detectors
+from payload.detect.motion import MotionDetector
 from payload.detect.region import SearchRegion
 from payload.detect.scan import NativeScan
 from payload.detect.switcher import GLOBAL, LOCAL, Switcher
@@ -32,58 +34,6 @@ from payload.detect.verify import LockVerifier
 from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
 
 log = logging.getLogger(__name__)
-
-# Camera motion for the search region is estimated on a grey image no wider than this, from a
-# coarser key-point grid than the motion detector's: the region only needs its centre carried
-# to a few pixels, and this runs on every local frame. Measured on 40 synthetic 1080p frames
-# against their true homographies (docs/notebook/2026-11-22.md "Speed work"): 640 px and 30x20 points, 0.25 px mean
-# error at full resolution and ~10 ms; 320 px and 15x10 points, 0.45 px and ~2.8 ms (2 loaded cores).
-_EGO_MOTION_WIDTH_PX = 320
-_EGO_MOTION_GRID_WH = (15, 10)
-# The global motion detector's camera motion is estimated on a grey copy no wider than this
-# (its full grid) and scaled up, instead of on the full frame: at 1080p that is a third of the
-# tracking work and the homography stays within ~0.25 px (same measurement). Frames this
-# narrow or narrower (Halmstad's 640x512) are unchanged: GMD estimates at full resolution.
-_MOTION_WIDTH_PX = 640
-
-
-@dataclass(frozen=True)
-class GreyLevels:
-    """One frame in grey, and the down-scaled copies the camera-motion estimates share.
-
-    Each level is the frame itself when it is already narrow enough (no copy); ``scale_xy``
-    maps full-frame pixels to that level's pixels.
-    """
-
-    full: np.ndarray
-    motion: np.ndarray  # <= _MOTION_WIDTH_PX wide
-    ego: np.ndarray  # <= _EGO_MOTION_WIDTH_PX wide
-
-    @classmethod
-    def of(cls, grey: np.ndarray) -> "GreyLevels":
-        motion = _downscaled(grey, _MOTION_WIDTH_PX)
-        return cls(grey, motion, _downscaled(motion, _EGO_MOTION_WIDTH_PX))
-
-    def scale_xy(self, level: np.ndarray) -> Tuple[float, float]:
-        return level.shape[1] / float(self.full.shape[1]), level.shape[0] / float(self.full.shape[0])
-
-
-def _downscaled(grey: np.ndarray, max_width_px: int) -> np.ndarray:
-    h, w = grey.shape
-    if w <= max_width_px:
-        return grey
-    size_wh = (max_width_px, max(1, int(round(h * max_width_px / float(w)))))
-    return cv2.resize(grey, size_wh, interpolation=cv2.INTER_AREA)
-
-
-def _to_full_frame(estimate: HomographyEstimate, scale_xy: Tuple[float, float]) -> HomographyEstimate:
-    """A homography estimated on a down-scaled level, in full-frame pixels."""
-    s = np.diag([scale_xy[0], scale_xy[1], 1.0])
-    matrix = np.linalg.inv(s) @ estimate.matrix @ s
-    mean_scale = (scale_xy[0] + scale_xy[1]) / 2.0
-    return HomographyEstimate(matrix / matrix[2, 2], estimate.tracked, estimate.inliers,
-                              estimate.mean_shift_px / mean_scale, estimate.ok)
-
 
 @dataclass(frozen=True)
 class GladResult:
@@ -100,6 +50,9 @@ class GladResult:
     # a lock is followed but not reported: LockCheck or the verifier is not yet convinced of it
     following: bool = False
     lock_p: float = float("nan")  # the verifier's drone probability for the lock (nan: not judged)
+    # per module, the work it left out this frame to stay within its time budget (e.g. GMD:
+    # candidates over motion.max_candidates not judged); empty on a frame done in full
+    degraded: Dict[str, int] = field(default_factory=dict)
 
     @property
     def state(self) -> str:
@@ -111,15 +64,15 @@ class GladResult:
 
 
 class Glad:
-    """Runs the GLAD pipeline frame by frame. ``models`` comes from payload.models.build_detectors."""
+    """Runs the GLAD pipeline frame by frame. ``models``: payload.detect.factory.build_detectors(cfg),
+    made here when not given."""
 
-    def __init__(self, cfg: DetectorConfig, models=None) -> None:
+    def __init__(self, cfg: DetectorConfig, models: Optional[DetectorModels] = None) -> None:
         if models is None:
-            from payload.models import build_detectors
-
             models = build_detectors(cfg)
         self.cfg = cfg
         self.models = models
+        self.ego_motion = EgoMotion(cfg.global_.motion)
         self.gmd = MotionDetector(cfg.global_.motion, GMD)
         self.lmd = MotionDetector(cfg.local.motion, LMD)
         self.region = SearchRegion(cfg.search_region)
@@ -132,11 +85,11 @@ class Glad:
         self._observed: Optional[Detections] = None
         self._drone_p: Optional[float] = None
         self._homography: Optional[np.ndarray] = None
+        self._degraded: Dict[str, int] = {}
         self.last_lock_row: Optional[np.ndarray] = None  # the verifier's row of this frame's lock
         self.last_lock_box: Optional[np.ndarray] = None  # the box that frame reports if verified
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
-        self._ego_cfg = _ego_motion_config(cfg)
         self.designated = False  # the lock is an operator's (designate): no retarget may take it
 
     @staticmethod
@@ -167,7 +120,7 @@ class Glad:
         cfg = DetectorConfig.model_validate(data)
         applied = section_changes(self.cfg, cfg, "detector")
         self.cfg = cfg
-        self._ego_cfg = _ego_motion_config(cfg)
+        self.ego_motion.update_config(cfg.global_.motion)
         self.gmd.update_config(cfg.global_.motion)
         self.lmd.update_config(cfg.local.motion)
         self.region.update_config(cfg.search_region)
@@ -223,6 +176,7 @@ class Glad:
         grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
         timings["grey"] = _ms(t0)
         self._observed, self._drone_p, self._homography = None, None, None
+        self._degraded = {}
         mode = self.switcher.mode if self.region.active else GLOBAL
         if mode == LOCAL:
             result = self._local(frame, grey, timings)
@@ -233,6 +187,8 @@ class Glad:
         self._verify(frame, grey, result, timings)
         if result.target is not None:
             result = replace(result, lock_p=self.verifier.probability)
+        if self._degraded:
+            result = replace(result, degraded=self._degraded)
         verified = self.verifier.verified or self.designated  # the operator picked this one: it needs no drone verdict
         if not (self.lock.confirmed and verified) and (len(result.detections) or result.target is not None):
             # followed, not reported: the classifier has not confirmed this lock (LockCheck), or
@@ -274,12 +230,11 @@ class Glad:
         prev = self._prev
         if not len(found) and self.cfg.global_.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
-            homography = None  # at full resolution: GMD estimates it itself
-            if grey.motion is not grey.full:
-                estimate = estimate_homography(prev.motion, grey.motion, self.cfg.global_.motion)
-                homography = _to_full_frame(estimate, grey.scale_xy(grey.motion))
-            motion = self.gmd.detect(prev.full, grey.full, homography=homography)
+            camera = self.ego_motion.estimate(prev, grey, fine=True)
+            motion = self.gmd.detect(prev.full, grey.full, camera)
             timings[GMD] = _ms(t)
+            if motion.left_out:
+                self._degraded[GMD] = motion.left_out
             found = self._classify(frame.image, motion.detections, timings)
             candidates.append(motion.detections)
         if not len(found) and gad is not None and self.cfg.global_.appearance.enabled:
@@ -301,10 +256,10 @@ class Glad:
 
     def _local(self, frame: Frame, grey: GreyLevels, timings: Dict[str, float]) -> GladResult:
         t = time.perf_counter()
-        homography = self._ego_motion(grey)
-        self._homography = homography if self._prev is not None else None
+        camera = self.ego_motion.estimate(self._prev, grey, fine=False)
+        self._homography = camera.matrix if self._prev is not None else None
         dt_s = (frame.t_capture_ns - self._prev_t_ns) / 1e9 if self._prev_t_ns is not None else 1.0 / 30
-        predicted = self.region.predict(homography, dt_s)
+        predicted = self.region.predict(camera, dt_s)
         region = self.region.region_xyxy(frame.size_wh)
         timings["region"] = _ms(t)
         x1, y1, x2, y2 = (int(v) for v in region)
@@ -320,8 +275,12 @@ class Glad:
         prev = self._prev
         if not len(found) and self.cfg.local.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
-            motion = self.lmd.detect(prev.full[y1:y2, x1:x2], grey.full[y1:y2, x1:x2], offset_xy=(x1, y1))
+            # the region's camera motion, not one of its own: one estimate a frame
+            motion = self.lmd.detect(prev.full[y1:y2, x1:x2], grey.full[y1:y2, x1:x2], camera.for_crop((x1, y1)),
+                                     offset_xy=(x1, y1))
             timings[LMD] = _ms(t)
+            if motion.left_out:
+                self._degraded[LMD] = motion.left_out
             found = self._classify(frame.image, motion.detections, timings)
             candidates.append(motion.detections)
         t = time.perf_counter()
@@ -361,16 +320,6 @@ class Glad:
         return GladResult(frame.index, frame.t_capture_ns, LOCAL, best, Detections.concat(candidates), target, region, timings)
 
     # --- helpers ----------------------------------------------------------------------------
-
-    def _ego_motion(self, grey: GreyLevels) -> np.ndarray:
-        """Frame-to-frame camera homography (full-frame pixels), estimated on the smallest level."""
-        prev = self._prev
-        if prev is None or prev.ego.shape != grey.ego.shape:
-            return np.eye(3)
-        estimate: HomographyEstimate = estimate_homography(prev.ego, grey.ego, self._ego_cfg)
-        if not estimate.ok:
-            return np.eye(3)
-        return _to_full_frame(estimate, grey.scale_xy(grey.ego)).matrix
 
     def _scan(self, frame: Frame, timings: Dict[str, float]) -> Detections:
         """Native-resolution hits on this frame's scan tiles (payload.detect.scan), as GAD hits.
@@ -466,11 +415,6 @@ class Glad:
         """The measured target: the chosen detection."""
         return Target(frame.index, frame.t_capture_ns, best.xyxy[0].copy(), float(best.score[0]),
                       str(best.module[0]), measured=True, region_xyxy=region)
-
-
-def _ego_motion_config(cfg: DetectorConfig):
-    """The global motion settings (LK, RANSAC) with the coarser grid of the search region's ego-motion."""
-    return cfg.global_.motion.model_copy(update={"grid_wh": _EGO_MOTION_GRID_WH})
 
 
 def _ms(t_start: float) -> float:

@@ -5,7 +5,7 @@ Kalman filter over x = (vx, vy, ax, ay), in pixels per second. The predicted cen
 
     p_t = H(p_{t-1}) + v * dt
 
-with H the frame-to-frame homography (camera motion). On a miss the filter is not updated:
+with H the frame-to-frame camera motion (payload.detect.ego_motion). On a miss the filter is not updated:
 its prediction carries the centre, and the side grows as L = L0 + k * T_lost.
 With ``adaptive: false`` the region is the authors' published variant: a fixed L0 square
 at the last detected centre.
@@ -18,16 +18,9 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from payload.config import SearchRegionConfig
+from payload.detect.ego_motion import CameraMotion
 
 log = logging.getLogger(__name__)
-
-
-def apply_homography(matrix: np.ndarray, xy: Tuple[float, float]) -> Tuple[float, float]:
-    """Map one pixel through a 3x3 homography."""
-    p = matrix @ np.array([xy[0], xy[1], 1.0])
-    if abs(p[2]) < 1e-12:
-        return float(xy[0]), float(xy[1])
-    return float(p[0] / p[2]), float(p[1] / p[2])
 
 
 class SearchRegion:
@@ -85,13 +78,13 @@ class SearchRegion:
         self.size_wh = (float(size_wh[0]), float(size_wh[1]))
         self.score = float(score)
 
-    def predict(self, homography: np.ndarray, dt_s: float) -> Tuple[float, float]:
+    def predict(self, camera: CameraMotion, dt_s: float) -> Tuple[float, float]:
         """Carry the centre into the new frame: camera motion, then the target's own motion."""
         if self.center is None:
             raise RuntimeError("SearchRegion.predict before start()")
         if not self.cfg.adaptive:
             return self.center  # the fixed region stays where the target was last seen
-        carried = apply_homography(homography, self.center)
+        carried = camera.apply(self.center)
         self._carried = carried
         dt_s = max(dt_s, 1e-3)
         self._kf.F = np.array(

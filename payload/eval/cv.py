@@ -132,7 +132,7 @@ def fold_model_files(models_dir: str, folds: Sequence[int]) -> Dict[int, Dict[st
 def model_digests(cfg) -> Dict[str, str]:
     """SHA-256 (first 16 hex digits) of the three ONNX files a config runs (shipped where unset), so
     that detections kept from other weights at the same path are not taken for these."""
-    from payload.models import builtin_model_path
+    from payload.detect.factory import builtin_model_path
 
     files = {"global": cfg.detector.global_.appearance.model, "local": cfg.detector.local.appearance.model,
              "classifier": cfg.detector.classifier.model}
