@@ -47,7 +47,7 @@ def format_profile(report) -> str:
         "bench %s on %s (%dx%d, %d frames)" % (report.runner, report.source, w, h, report.frames),
         "onnxruntime providers=%s threads=%s cpus=%d load_avg=%s" % (
             ",".join(report.providers) or "-",
-            report.threads or "default (one per physical core)", report.cpu_count,
+            report.threads or "auto (one fewer than the cores, at least 1)", report.cpu_count,
             "/".join("%.1f" % v for v in report.load_avg)),
         "",
         "%-11s %6s %7s %9s %9s %9s %9s" % ("module", "runs", "share%", "median_ms", "p95_ms", "p99_ms", "mean_ms"),

@@ -89,7 +89,7 @@ class BenchReport:
     messages_sent: int  # target messages the publisher handed to the link
     messages_received: int  # non-heartbeat MAVLink messages that reached the bench's socket
     providers: List[str]  # ONNX Runtime provider of each session, in model order
-    threads: int  # detector.threads (0 = ONNX Runtime's default)
+    threads: int  # detector.threads (0 = one fewer than the cores, at least 1)
     cpu_count: int
     load_avg: Tuple[float, float, float] = field(default=(0.0, 0.0, 0.0))
     fps_stream_off: float = float("nan")  # pass 2 and the second stream-off pass: the best end-to-end FPS

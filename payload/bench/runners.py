@@ -54,7 +54,7 @@ def onnx_sessions(runner) -> List:
 
 def build_runner(cfg: Config, kind: str = "glad", overlap: float = DEFAULT_OVERLAP):
     """A runner of ``kind`` (one of RUNNERS) with its models loaded and warmed up."""
-    from payload.models import build_detectors
+    from payload.detect.factory import build_detectors
 
     if kind == "glad":
         return Glad(cfg.detector)
