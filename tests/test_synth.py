@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from payload.capture.base import EndOfStream
-from payload.capture.synthetic import SyntheticSource
+from payload.capture.synthetic import SyntheticSource, scene_of
 from payload.config import SyntheticSceneConfig
 from payload.errors import ConfigError, SourceError
 from payload.synth.export import export_clip, write_labels
@@ -242,3 +242,55 @@ def test_real_video_background(halmstad_dir):
     assert all(f.image.shape == (H, W, 3) for f in frames)
     assert frames[0].image.std() > 10  # real content, not a blank frame
     assert sum(f.target_xyxy is not None for f in frames) >= 5
+
+
+def _drone_pixels(**kw):
+    """(mean grey of the pixels the target changed, elevation in degrees of every visible target)."""
+    drawn = _frames(30, **kw)
+    bare = _frames(30, render_target=False, **kw)
+    values, elevations = [], []
+    for f, g in zip(drawn, bare):
+        changed = np.any(f.image != g.image, axis=2)
+        if f.target_xyxy is None or not changed.any():
+            continue
+        values.append(f.image[changed].mean())
+        x, y, z = f.target_direction
+        elevations.append(np.degrees(np.arctan2(-y, np.hypot(x, z))))
+    return float(np.mean(values)), elevations
+
+
+def test_light_drone_in_a_clear_sky():
+    """drone=light: a white/light-grey airframe (brighter than the default mostly dark ones);
+    target_in_sky: every frame's target above the far hills."""
+    for seed in (1, 2, 3):
+        light, elevations = _drone_pixels(seed=seed, target_px=(14.0, 18.0), drone_look="light", sky="clear",
+                                          target_in_sky=True)
+        assert light > 140, seed
+        assert len(elevations) >= 10 and min(elevations) >= 3.9, seed
+    dark = [_drone_pixels(seed=seed, target_px=(14.0, 18.0))[0] for seed in (1, 2, 3)]
+    assert min(dark) < 110
+
+
+def test_clear_sky_has_the_sun_in_it():
+    """sky=clear: a blue sky (blue above red) with a saturated sun disc somewhere in the backdrop."""
+    from payload.synth.backdrop import Backdrop
+    from payload.synth.camera import Lens, MotionLimits
+
+    for seed in (1, 2):
+        lens = Lens(640, 360, np.radians(60.0))
+        clear = Backdrop(np.random.default_rng(seed), lens, MotionLimits(), sky="clear", glare_rng=np.random.default_rng(seed + 50)).image
+        assert (clear.min(axis=2) >= 250).sum() > 50
+        top = clear[: clear.shape[0] // 8].reshape(-1, 3).mean(axis=0)
+        assert top[0] > top[2] + 30  # BGR: blue well above red at the zenith
+    with pytest.raises(ValueError, match="sky"):
+        Backdrop(np.random.default_rng(1), Lens(64, 36, 1.0), MotionLimits(), sky="pink")
+
+
+def test_scene_look_options_are_checked_and_configurable():
+    with pytest.raises(ConfigError, match="synthetic.drone='purple'"):
+        Scene(drone_look="purple")
+    with pytest.raises(ConfigError, match="synthetic.sky='night'"):
+        Scene(sky="night")
+    cfg = SyntheticSceneConfig(drone="light", sky="clear", target_in_sky=True, target_px=(3.0, 6.0))
+    scene = scene_of(cfg)
+    assert (scene.drone_look, scene.sky, scene.target_in_sky) == ("light", "clear", True)

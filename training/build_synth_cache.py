@@ -7,6 +7,8 @@ synth_cls.npz: x [K, 32, 32, 3] classifier patches (payload.detect.patches), y [
   warped by the scene's exact homography): what a motion detector proposes on a moving camera.
 
   python training/build_synth_cache.py [--scenes 40] [--frames 90]
+  python training/build_synth_cache.py --name synth_light --first-seed 1300 --target-px 2 8 \
+      --drone light --sky clear --in-sky        # tiny light drones against a bright sky (issue 16)
 """
 
 import argparse
@@ -45,6 +47,9 @@ def main():
     ap.add_argument("--name", default="synth", help="outputs <name>_det.npz and <name>_cls.npz")
     ap.add_argument("--target-px", type=float, nargs=2, default=(4.0, 24.0), help="drone size range")
     ap.add_argument("--cache", default=CACHE, help="output folder (default training/cache)")
+    ap.add_argument("--drone", choices=("any", "light"), default="any", help="airframe colour (payload.synth)")
+    ap.add_argument("--sky", choices=("any", "clear"), default="any", help="sky (clear: blue with the sun's glare)")
+    ap.add_argument("--in-sky", action="store_true", help="keep the drone above the horizon")
     args = ap.parse_args()
     os.makedirs(args.cache, exist_ok=True)
     rng = np.random.default_rng(1)
@@ -53,7 +58,8 @@ def main():
     for s in range(args.scenes):
         seed = args.first_seed + s
         prev = None
-        for sf in Scene(seed=seed, width=1920, height=1080, fps=30.0, frames=args.frames, target_px=tuple(args.target_px)):
+        for sf in Scene(seed=seed, width=1920, height=1080, fps=30.0, frames=args.frames, target_px=tuple(args.target_px),
+                        drone_look=args.drone, sky=args.sky, target_in_sky=args.in_sky):
             img = sf.image
             box = sf.target_xyxy
             visible = box is not None and sf.target_visible >= 0.5

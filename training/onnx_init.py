@@ -13,7 +13,7 @@ import torch
 import torch.nn as nn
 from onnx import numpy_helper
 
-from training.net import TinyCenterNet
+from training.net import PatchClassifier, TinyCenterNet
 
 
 def load_onnx_detector(path: str, width: float, calibration_batches) -> TinyCenterNet:
@@ -93,3 +93,35 @@ def max_abs_diff(net, path: str, x: torch.Tensor) -> float:
     with torch.no_grad():
         mine = DetectorExport(net.eval())(x).numpy()
     return float(np.abs(mine - ref).max())
+
+
+def load_onnx_classifier(path: str) -> PatchClassifier:
+    """The shipped patch classifier as a PatchClassifier: its two Conv nodes (BatchNorm folded in)
+    and three Gemm nodes copied in; each BatchNorm is the identity in eval mode, so fine-tune it with
+    the BatchNorms frozen (``freeze_batchnorm``)."""
+    model = onnx.load(path)
+    weights = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
+    net = PatchClassifier()
+    layers = [m for m in net.modules() if isinstance(m, (nn.Conv2d, nn.Linear))]
+    nodes = [n for n in model.graph.node if n.op_type in ("Conv", "Gemm")]
+    if [n.op_type for n in nodes] != ["Conv" if isinstance(m, nn.Conv2d) else "Gemm" for m in layers]:
+        raise ValueError("%s: layers %s, expected the PatchClassifier's" % (path, [n.op_type for n in nodes]))
+    with torch.no_grad():
+        for node, layer in zip(nodes, layers):
+            w = torch.from_numpy(weights[node.input[1]].copy())
+            if w.shape != layer.weight.shape:
+                raise ValueError("%s: %s has shape %s, expected %s" % (path, node.name, tuple(w.shape), tuple(layer.weight.shape)))
+            layer.weight.copy_(w)
+            layer.bias.copy_(torch.from_numpy(weights[node.input[2]].copy()))
+        for bn in (m for m in net.modules() if isinstance(m, nn.BatchNorm2d)):
+            _set_bn(bn, torch.zeros(bn.num_features), torch.ones(bn.num_features), torch.zeros(bn.num_features))
+    return net
+
+
+def freeze_batchnorm(net: nn.Module) -> None:
+    """BatchNorms in eval mode with fixed parameters (call after every net.train())."""
+    for m in net.modules():
+        if isinstance(m, nn.BatchNorm2d):
+            m.eval()
+            m.weight.requires_grad_(False)
+            m.bias.requires_grad_(False)

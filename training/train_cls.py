@@ -50,7 +50,8 @@ def main():
     ap.add_argument("--hard", nargs="*", default=[], help="npz files of hard negatives (x, y = 0), e.g. birds and "
                     "airliners, drawn as --hard-frac of every batch besides the other clutter")
     ap.add_argument("--hard-frac", type=float, default=0.25)
-    ap.add_argument("--init", default=None, help="start from this run's checkpoint (fine-tuning), e.g. training/runs/cls5/last.pt")
+    ap.add_argument("--init", default=None, help="start from this run's checkpoint (fine-tuning), e.g. training/runs/cls5/last.pt, "
+                    "or from an exported classifier (.onnx; its BatchNorms stay frozen)")
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--cache", default=CACHE, help="folder of cls_x.npy, cls_y.npy (build_cache.py)")
     args = ap.parse_args()
@@ -72,7 +73,15 @@ def main():
     net = PatchClassifier().to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-4)
     step = 0
-    if args.init:
+    frozen_bn = bool(args.init and args.init.endswith(".onnx"))
+    if frozen_bn:
+        from training.onnx_init import freeze_batchnorm, load_onnx_classifier
+
+        net = load_onnx_classifier(args.init).to(device)
+        freeze_batchnorm(net)
+        opt = torch.optim.AdamW([p for p in net.parameters() if p.requires_grad], lr=args.lr, weight_decay=1e-4)
+        print("init from %s (BatchNorm folded in the graph: frozen)" % args.init, flush=True)
+    elif args.init:
         load_weights(args.init, net, device)
     last = os.path.join(run, "last.pt")
     if args.resume and os.path.exists(last):
@@ -82,6 +91,8 @@ def main():
     t0 = time.time()
     while step < args.steps:
         net.train()
+        if frozen_bn:
+            freeze_batchnorm(net)
         for g in opt.param_groups:
             g["lr"] = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
         idx = np.concatenate([rng.choice(pos, args.batch // 2), rng.choice(neg, args.batch // 2 - n_hard),

@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from training.augment import photometric  # noqa: E402
+from training.augment import paste_drone, photometric, thermal_polarity  # noqa: E402
 from training.net import (  # noqa: E402
     STRIDE,
     TinyCenterNet,
@@ -39,7 +39,7 @@ PAD = 114
 
 class Sampler:
     def __init__(self, size, scale_min, scale_max, neg_frac, seed, extra=None, extra_frac=0.3, neg_file="det_neg.npy",
-                 cache=CACHE):
+                 cache=CACHE, paste_frac=0.0, paste_px=(2.0, 10.0), polarity_p=0.0):
         self.pos = np.load(os.path.join(cache, "det_pos.npy"), mmap_mode="r")
         self.pos_xyxy = np.load(os.path.join(cache, "det_pos_xyxy.npy"))
         self.neg = np.load(os.path.join(cache, neg_file), mmap_mode="r")
@@ -47,11 +47,21 @@ class Sampler:
         self.extra_frac = extra_frac
         self.size, self.smin, self.smax, self.neg_frac = size, scale_min, scale_max, neg_frac
         self.rng = np.random.default_rng(seed)
+        self.paste_frac, self.paste_px, self.polarity_p = paste_frac, paste_px, polarity_p
 
     def one(self):
         rng, t = self.rng, self.size
         smin, smax = self.smin, self.smax
-        if self.extra is not None and rng.random() < self.extra_frac:
+        pasted = self.paste_frac > 0 and rng.random() < self.paste_frac
+        if pasted:
+            # a real drone shrunk to a few pixels (and recoloured) on a real drone-free frame: the
+            # tiny drones the recordings hold too few of, on real backgrounds; kept near native scale
+            k = rng.integers(len(self.pos))
+            span = math.exp(rng.uniform(math.log(self.paste_px[0]), math.log(self.paste_px[1])))
+            img, box = paste_drone(rng, np.asarray(self.neg[rng.integers(len(self.neg))]), np.asarray(self.pos[k]),
+                                   self.pos_xyxy[k], span)
+            smin, smax = 0.8, 1.25
+        elif self.extra is not None and rng.random() < self.extra_frac:
             # synthetic 1920x1080 crops: drones mostly in the local regime (native resolution; at
             # the global 1/3 down-scale their 4-24 px shrink to a few pixels), clutter and birds
             # at every scale so the global detector learns to ignore them
@@ -101,7 +111,8 @@ class Sampler:
             canvas = canvas[:, ::-1]
             if box is not None:
                 box = np.array([t - box[2], box[1], t - box[0], box[3]], np.float32)
-        img = photometric(rng, np.ascontiguousarray(canvas))[..., ::-1] / 255.0
+        canvas = thermal_polarity(rng, np.ascontiguousarray(canvas), self.polarity_p)
+        img = photometric(rng, canvas)[..., ::-1] / 255.0
         return img.transpose(2, 0, 1).astype(np.float32), box
 
     def batch(self, n):
@@ -161,6 +172,10 @@ def main():
     ap.add_argument("--synth", nargs="*", default=[], help="npz files with extra crops: images [N,S,S,3], xyxy [N,4] (NaN = no drone)")
     ap.add_argument("--synth-frac", type=float, default=0.3)
     ap.add_argument("--neg-file", default="det_neg.npy", help="drone-free crops in --cache")
+    ap.add_argument("--paste-frac", type=float, default=0.0,
+                    help="share of samples made by pasting a real drone, shrunk to --paste-px and recoloured, on a drone-free crop")
+    ap.add_argument("--paste-px", type=float, nargs=2, default=(2.0, 10.0), help="pasted drone size range, px across")
+    ap.add_argument("--polarity-p", type=float, default=0.0, help="probability a thermal (grey) sample is flipped white-hot <-> black-hot")
     ap.add_argument("--cache", default=CACHE, help="folder of det_pos.npy, det_pos_xyxy.npy, det_neg.npy (build_cache.py)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -178,7 +193,7 @@ def main():
         files = [np.load(path) for path in args.synth]
         extra = (np.concatenate([z["images"] for z in files]), np.concatenate([z["xyxy"] for z in files]))
     sampler = Sampler(args.size, args.scale_min, args.scale_max, args.neg_frac, seed=step + 1, extra=extra, extra_frac=args.synth_frac, neg_file=args.neg_file,
-                      cache=args.cache)
+                      cache=args.cache, paste_frac=args.paste_frac, paste_px=tuple(args.paste_px), polarity_p=args.polarity_p)
     if step == 0 and args.init and args.init.endswith(".onnx"):
         from training.onnx_init import load_onnx_detector, max_abs_diff
 

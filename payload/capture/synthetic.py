@@ -15,7 +15,8 @@ log = logging.getLogger(__name__)
 def scene_of(cfg: SyntheticSceneConfig) -> Scene:
     """The scene a synthetic capture config describes."""
     return Scene(seed=cfg.seed, width=cfg.width, height=cfg.height, fps=cfg.fps, frames=cfg.frames,
-                 target_px=tuple(cfg.target_px), background=cfg.background)
+                 target_px=tuple(cfg.target_px), background=cfg.background, drone_look=cfg.drone,
+                 sky=cfg.sky, target_in_sky=cfg.target_in_sky)
 
 
 class SyntheticSource(FrameSource):

@@ -37,6 +37,11 @@ class SyntheticSceneConfig(Section):
     frames: int = Field(0, ge=0, description="Frames to render; 0 = endless.")
     background: Optional[str] = Field(None, description="Video whose frames serve as backgrounds.")
     target_px: Tuple[float, float] = Field((4.0, 80.0), description="Target drone size range, px across.")
+    drone: Literal["any", "light"] = Field("any", description="Airframe colour: any, or light (white/light grey, "
+                                                              "half with navigation lights).")
+    sky: Literal["any", "clear"] = Field("any", description="Sky: any (clear, hazy or overcast), or clear (blue, "
+                                                            "with the sun's glare).")
+    target_in_sky: bool = Field(False, description="Keep the target above the horizon (against the sky).")
 
     @model_validator(mode="after")
     def _target_px(self):

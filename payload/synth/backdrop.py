@@ -80,8 +80,13 @@ def _ground_texture(rng: np.random.Generator) -> np.ndarray:
 class Backdrop:
     """A rendered panorama on the backdrop plane, large enough for every allowed camera pose."""
 
-    def __init__(self, rng: np.random.Generator, lens: Lens, limits: MotionLimits, scale: float = 0.85):
+    def __init__(self, rng: np.random.Generator, lens: Lens, limits: MotionLimits, scale: float = 0.85,
+                 sky: str = "any", glare_rng: Optional[np.random.Generator] = None):
+        if sky not in ("any", "clear"):
+            raise ValueError("sky %r: expected any or clear" % sky)
         self.lens = lens
+        self.sky = sky
+        self.glare_rng = glare_rng
         self.R_ref, self.K_ref, self.size_wh = _plane_geometry(lens, limits, scale)
         # Ground plane (X, Z) metres -> backdrop pixel.
         h = BACKDROP_ALTITUDE_M
@@ -111,6 +116,8 @@ class Backdrop:
 
         # Sky palette: clear blue, hazy, overcast.
         kind = int(rng.integers(3))
+        if self.sky == "clear":  # drawn anyway: the other draws stay those of an "any" sky
+            kind = 0
         horizon = np.array([[215, 205, 195], [200, 200, 200], [185, 185, 180]][kind], np.float32)
         zenith = np.array([[200, 145, 95], [190, 170, 150], [160, 160, 158]][kind], np.float32)
         t = np.sqrt(np.clip(elev / 0.6, 0, 1))[..., None]
@@ -156,8 +163,27 @@ class Backdrop:
         out[hill] = hill_colour
         ground_mask = elev_f < 0
         out[ground_mask & ~hill] = ground[ground_mask & ~hill]
+        if self.sky == "clear" and self.glare_rng is not None:
+            out = _sun_glare(self.glare_rng, out, elev_f)
         log.debug("backdrop rendered size_wh=%dx%d sky=%d", w, h, kind)
         return out
+
+
+def _sun_glare(rng: np.random.Generator, image: np.ndarray, elev: np.ndarray) -> np.ndarray:
+    """The sun low in a clear sky: a white disc in a wide bloom that washes out everything near it
+    (a light drone beside the sun has almost no contrast left)."""
+    ys, xs = np.nonzero((elev > math.radians(4.0)) & (elev < math.radians(20.0)))
+    if len(xs) == 0:
+        return image
+    k = int(rng.integers(len(xs)))
+    cx, cy = float(xs[k]), float(ys[k])
+    h, w = image.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    r2 = (xx - cx) ** 2 + (yy - cy) ** 2
+    halo = float(rng.uniform(120.0, 400.0))
+    core = float(rng.uniform(6.0, 14.0))
+    gain = rng.uniform(60.0, 140.0) * np.exp(-r2 / (2 * halo ** 2)) + 255.0 * np.exp(-r2 / (2 * core ** 2))
+    return np.clip(image.astype(np.float32) + gain[..., None], 0, 255).astype(np.uint8)
 
 
 class VideoBackdrop:

@@ -43,10 +43,20 @@ def _circle(centre, radius: float, n: int = 20) -> np.ndarray:
                      np.full(n, centre[2])], 1)
 
 
-class DroneModel:
-    """One multirotor's shape and colours (drawn at random per scene). Units: span = 1."""
+#: Navigation lights (BGR): red at the front arms, green at the rear, as on most consumer drones.
+NAV_RED = np.array([60.0, 60.0, 255.0])
+NAV_GREEN = np.array([90.0, 255.0, 90.0])
 
-    def __init__(self, rng: np.random.Generator):
+
+class DroneModel:
+    """One multirotor's shape and colours (drawn at random per scene). Units: span = 1.
+
+    ``look``: "any" draws the airframe's colour (mostly dark, some grey, some white); "light"
+    makes it white or light grey, half of them with navigation lights on the motors: the tiny
+    light drone against a bright sky that the dark-blob cue misses (issue 16).
+    """
+
+    def __init__(self, rng: np.random.Generator, look: str = "any"):
         self.arm_r = rng.uniform(0.30, 0.36)
         self.rotor_r = 0.5 - self.arm_r
         self.body_half = rng.uniform(0.08, 0.13)
@@ -68,6 +78,19 @@ class DroneModel:
         self.rotor_alpha = rng.uniform(0.25, 0.45)
         self.has_skids = rng.random() < 0.6
         self.has_gimbal = rng.random() < 0.6
+        self.motors = [self.motor] * 4
+        self.motor_r = 0.03
+        if look == "light":  # drawn after the rest, so "any" scenes keep their random stream
+            body = rng.uniform(175, 235) if rng.random() < 0.6 else rng.uniform(140, 180)
+            self.body = np.array([body, body, body * rng.uniform(0.97, 1.03)])
+            self.underside = np.minimum(self.body * rng.uniform(0.85, 1.05), 245)
+            self.arm = self.body * rng.uniform(0.85, 1.0)
+            self.rotor = np.full(3, rng.uniform(150, 220))
+            self.motor = self.body * rng.uniform(0.4, 0.8)
+            if rng.random() < 0.5:  # a lit LED looks bigger than the motor it sits on
+                self.motors, self.motor_r = [NAV_RED, NAV_RED, NAV_GREEN, NAV_GREEN], 0.05
+        elif look != "any":
+            raise ValueError("drone look %r: expected any or light" % look)
 
     def _parts(self) -> Tuple[List[Tuple[np.ndarray, np.ndarray]], List[np.ndarray]]:
         """Opaque convex parts as (3-D points, colour) and rotor discs as 3-D point rings."""
@@ -85,8 +108,8 @@ class DroneModel:
             n = np.array([-d[1], d[0], 0.0]) * arm_w
             tip = d * self.arm_r
             parts.append((np.array([n, -n, tip - n, tip + n]) + [0, 0, 0.005], self.arm))
-            parts.append((np.concatenate([_circle(tip + [0, 0, -0.02], 0.03, 8),
-                                          _circle(tip + [0, 0, 0.03], 0.03, 8)]), self.motor))
+            parts.append((np.concatenate([_circle(tip + [0, 0, -0.02], self.motor_r, 8),
+                                          _circle(tip + [0, 0, 0.03], self.motor_r, 8)]), self.motors[k]))
             discs.append(_circle(tip + [0, 0, 0.035], self.rotor_r))
         if self.has_skids:
             for side in (-1, 1):

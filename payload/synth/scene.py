@@ -27,6 +27,8 @@ log = logging.getLogger(__name__)
 #: Fraction of the frame interval the shutter is open (sets the motion-blur length).
 EXPOSURE_FRACTION = 0.5
 MAX_BLUR_PX = 25.0
+#: ``target_in_sky``: the target's lowest elevation (the far hills reach ~2 deg).
+SKY_MIN_ELEVATION_RAD = math.radians(4.0)
 
 
 @dataclass(frozen=True)
@@ -60,10 +62,13 @@ class SceneFrame:
 class _TargetPath:
     """The target's bearing (yaw, pitch; it is far away) and size: hovering or flying."""
 
-    def __init__(self, rng: np.random.Generator, limits: MotionLimits, fps: float, span_px: Tuple[float, float]):
+    def __init__(self, rng: np.random.Generator, limits: MotionLimits, fps: float, span_px: Tuple[float, float],
+                 in_sky: bool = False):
         self.rng, self.lim, self.dt_s = rng, limits, 1.0 / fps
+        # In the sky: above the far hills (up to ~2 deg) with a margin, whatever the camera's roll.
+        self.pitch_min_rad = max(limits.pitch_min_rad, SKY_MIN_ELEVATION_RAD) if in_sky else limits.pitch_min_rad
         self.yaw = rng.uniform(-0.5, 0.5) * limits.yaw_rad
-        self.pitch = rng.uniform(limits.pitch_min_rad, limits.pitch_max_rad)
+        self.pitch = rng.uniform(self.pitch_min_rad, limits.pitch_max_rad)
         self.vel = np.zeros(2)
         self.flying = rng.random() < 0.6
         lo, hi = math.log(span_px[0]), math.log(span_px[1])
@@ -94,8 +99,8 @@ class _TargetPath:
         if abs(self.yaw) > lim.yaw_rad * 0.9:
             self.yaw = math.copysign(lim.yaw_rad * 0.9, self.yaw)
             self.vel[0] *= -1
-        if not (lim.pitch_min_rad < self.pitch < lim.pitch_max_rad + 0.05):
-            self.pitch = float(np.clip(self.pitch, lim.pitch_min_rad, lim.pitch_max_rad + 0.05))
+        if not (self.pitch_min_rad < self.pitch < lim.pitch_max_rad + 0.05):
+            self.pitch = float(np.clip(self.pitch, self.pitch_min_rad, lim.pitch_max_rad + 0.05))
             self.vel[1] *= -1
         self.log_span = self.size.step(dt)
         if self.flying and np.hypot(*self.vel) > 1e-6:
@@ -123,15 +128,20 @@ class Scene:
                  frames: int = 300, target_px: Tuple[float, float] = (4.0, 80.0),
                  background: Optional[str] = None, clutter: int = 4, birds: int = 2, cars: int = 3,
                  noise: float = 1.0, shake: float = 1.0, jump_rate_hz: float = 0.1, hfov_deg: float = 60.0,
-                 render_target: bool = True):
+                 render_target: bool = True, drone_look: str = "any", sky: str = "any", target_in_sky: bool = False):
         if not (0 < target_px[0] <= target_px[1]):
             raise ConfigError([f"synthetic.target_px={list(target_px)}: expected 0 < min <= max"])
+        if drone_look not in ("any", "light"):
+            raise ConfigError([f"synthetic.drone={drone_look!r}: expected any or light"])
+        if sky not in ("any", "clear"):
+            raise ConfigError([f"synthetic.sky={sky!r}: expected any or clear"])
         self.seed, self.width, self.height, self.fps, self.frames = seed, width, height, fps, frames
         self.target_px = (float(target_px[0]), float(target_px[1]))
         self.background = background
         self.n_clutter, self.n_birds, self.n_cars = clutter, birds, cars
         self.noise, self.shake, self.jump_rate_hz = noise, shake, jump_rate_hz
         self.render_target = render_target
+        self.drone_look, self.sky, self.target_in_sky = drone_look, sky, target_in_sky
         self.lens = Lens(width, height, math.radians(hfov_deg))
         if background:
             # A real frame tolerates less stretching: smaller turns, no zooming out.
@@ -140,8 +150,11 @@ class Scene:
                                        zoom_min=1.0, zoom_max=1.3, hfov_rad=math.radians(hfov_deg))
         else:
             self.limits = MotionLimits(hfov_rad=math.radians(hfov_deg))
-        streams = np.random.SeedSequence(seed).spawn(8)
-        self._seeds = dict(zip(["backdrop", "camera", "target", "clutter", "birds", "cars", "noise", "model"], streams))
+        # Child i of a SeedSequence does not depend on how many are spawned: appending a stream
+        # leaves every earlier one (and so every default scene's pixels) unchanged.
+        streams = np.random.SeedSequence(seed).spawn(9)
+        self._seeds = dict(zip(["backdrop", "camera", "target", "clutter", "birds", "cars", "noise", "model", "glare"],
+                               streams))
         self._backdrop: Optional[Backdrop] = None
 
     def _rng(self, name: str) -> np.random.Generator:
@@ -151,7 +164,8 @@ class Scene:
         if self.background:
             return VideoBackdrop(self.background, self.lens, self.limits)
         if self._backdrop is None:  # rendered once, shared by every iteration
-            self._backdrop = Backdrop(self._rng("backdrop"), self.lens, self.limits)
+            self._backdrop = Backdrop(self._rng("backdrop"), self.lens, self.limits, sky=self.sky,
+                                      glare_rng=self._rng("glare"))
         return self._backdrop
 
     def __iter__(self) -> Iterator[SceneFrame]:
@@ -173,8 +187,8 @@ class Scene:
         w, h, lim = self.width, self.height, self.limits
         draw = backdrop is not None
         cam = CameraPath(self._rng("camera"), lim, self.fps, shake=self.shake, jump_rate_hz=self.jump_rate_hz)
-        target = _TargetPath(self._rng("target"), lim, self.fps, self.target_px)
-        model = DroneModel(self._rng("model"))
+        target = _TargetPath(self._rng("target"), lim, self.fps, self.target_px, in_sky=self.target_in_sky)
+        model = DroneModel(self._rng("model"), look=self.drone_look)
         near = clutter_mod.Clutter(self._rng("clutter"), self.lens, self.n_clutter, buildings=not self.background)
         if draw:
             birds = Birds(self._rng("birds"), lim, self.n_birds, self.fps)
