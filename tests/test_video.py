@@ -187,7 +187,8 @@ def test_a_ground_station_can_leave_and_come_back(gst):
             check_halves(receiver.frames[-1])
             receiver.close()  # TEARDOWN
             deadline = time.monotonic() + 10
-            while out.stream.feed is not None and time.monotonic() < deadline:
+            # the media's end and the client's "closed" signal come separately: wait for both
+            while (out.stream.feed is not None or out.stats().clients) and time.monotonic() < deadline:
                 time.sleep(0.05)
             assert out.stream.feed is None and out.stats().clients == 0
     finally:
