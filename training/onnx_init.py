@@ -27,10 +27,7 @@ def load_onnx_detector(path: str, width: float, calibration_batches) -> TinyCent
     biases = {}
     with torch.no_grad():
         for node, conv in zip(convs, modules):
-            w = torch.from_numpy(weights[node.input[1]].copy())
-            if w.shape != conv.weight.shape:
-                raise ValueError("%s: Conv %s has shape %s, expected %s" % (path, node.name, tuple(w.shape), tuple(conv.weight.shape)))
-            conv.weight.copy_(w)
+            w = _copy_weight(path, node, conv, weights)
             b = torch.from_numpy(weights[node.input[2]].copy()) if len(node.input) > 2 else torch.zeros(w.shape[0])
             if conv.bias is not None:
                 conv.bias.copy_(b)
@@ -60,6 +57,16 @@ def load_onnx_detector(path: str, width: float, calibration_batches) -> TinyCent
             bn.running_mean.copy_(mean - biases[conv])
             bn.running_var.copy_(std ** 2 - bn.eps)
     return net
+
+
+def _copy_weight(path: str, node, layer: nn.Module, weights) -> torch.Tensor:
+    """The weight of ONNX ``node`` copied into ``layer`` (shapes must agree); returns it."""
+    w = torch.from_numpy(weights[node.input[1]].copy())
+    if w.shape != layer.weight.shape:
+        raise ValueError("%s: %s %s has shape %s, expected %s"
+                         % (path, node.op_type, node.name, tuple(w.shape), tuple(layer.weight.shape)))
+    layer.weight.copy_(w)
+    return w
 
 
 def _conv_of(pairs, bn):
@@ -108,10 +115,7 @@ def load_onnx_classifier(path: str) -> PatchClassifier:
         raise ValueError("%s: layers %s, expected the PatchClassifier's" % (path, [n.op_type for n in nodes]))
     with torch.no_grad():
         for node, layer in zip(nodes, layers):
-            w = torch.from_numpy(weights[node.input[1]].copy())
-            if w.shape != layer.weight.shape:
-                raise ValueError("%s: %s has shape %s, expected %s" % (path, node.name, tuple(w.shape), tuple(layer.weight.shape)))
-            layer.weight.copy_(w)
+            _copy_weight(path, node, layer, weights)
             layer.bias.copy_(torch.from_numpy(weights[node.input[2]].copy()))
         for bn in (m for m in net.modules() if isinstance(m, nn.BatchNorm2d)):
             _set_bn(bn, torch.zeros(bn.num_features), torch.ones(bn.num_features), torch.zeros(bn.num_features))

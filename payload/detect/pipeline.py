@@ -222,11 +222,7 @@ class Glad:
         candidates = []
         gad = self.models.global_appearance
         if gad is not None and self.cfg.global_.appearance.enabled:
-            t = time.perf_counter()
-            found = gad.detect(frame.image)
-            timings[GAD] = _ms(t)
-            candidates.append(found)
-            found = self._classify(frame.image, found, timings)
+            found = self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates)
         prev = self._prev
         if not len(found) and self.cfg.global_.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
@@ -267,11 +263,7 @@ class Glad:
         candidates = []
         lad = self.models.local_appearance
         if lad is not None and self.cfg.local.appearance.enabled:
-            t = time.perf_counter()
-            found = lad.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1))
-            timings[LAD] = _ms(t)
-            candidates.append(found)
-            found = self._classify(frame.image, found, timings)
+            found = self._appearance(lad, frame.image, frame.image[y1:y2, x1:x2], (x1, y1), timings, candidates)
         prev = self._prev
         if not len(found) and self.cfg.local.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
@@ -359,6 +351,16 @@ class Glad:
         if not len(far):
             return far
         return self._confirm(image, far.sorted_by_score()[:1], rescore=False, timings=timings)
+
+    def _appearance(self, detector, image: np.ndarray, part: np.ndarray, offset_xy, timings: Dict[str, float],
+                    candidates: List[Detections]) -> Detections:
+        """GAD or LAD on ``part`` of the frame (at ``offset_xy``): its hits join ``candidates``,
+        those the classifier confirms are returned."""
+        t = time.perf_counter()
+        found = detector.detect(part, offset_xy=offset_xy)
+        timings[detector.module] = _ms(t)
+        candidates.append(found)
+        return self._classify(image, found, timings)
 
     def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float],
                   threshold: Optional[float] = None) -> Detections:
