@@ -567,7 +567,7 @@ def test_fake_autopilot_follows_the_synthetic_scene_camera(fakes, tmp_path):
     link = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}"))
     with link:
         wait_for(lambda: link.status.time_synced and link.attitude_at(time.monotonic_ns() - 1_000_000_000),
-                 15.0, "1 s of scene attitude")
+                 25.0, "1 s of scene attitude")  # within the 30 s of attitude above
         checked = 0
         deadline = time.monotonic() + 15.0  # a starved fake autopilot leaves spans without attitude: wait them out
         while checked < 5 and time.monotonic() < deadline:
