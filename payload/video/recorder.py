@@ -21,14 +21,7 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from payload.video.gst import (
-    AppsrcFeed,
-    OwnPipeline,
-    VideoUnavailable,
-    appsrc_text,
-    encoder_chain,
-    import_gst,
-)
+from payload.video import gst
 
 log = logging.getLogger(__name__)
 
@@ -54,8 +47,8 @@ class Recorder:
                  bitrate_kbps: int, encoder: str) -> None:
         problem = _dir_problem(directory)
         if problem is not None:
-            raise VideoUnavailable("recording.dir %s: %s" % (directory, problem))
-        Gst, _ = import_gst()
+            raise gst.VideoUnavailable("recording.dir %s: %s" % (directory, problem))
+        Gst, _ = gst.import_gst()
         self.directory = directory
         self.quota_bytes = int(quota_mb * 1e6)
         self.frames = 0  # frames queued for the encoder
@@ -63,8 +56,8 @@ class Recorder:
         self._last_quota_check = 0.0
         self.deleted = 0  # segments deleted for the quota
         prefix = "glad-%s-" % time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-        self.pipeline = OwnPipeline("%s ! %s ! splitmuxsink name=mux" % (
-            appsrc_text(size_wh, fps), encoder_chain(encoder, bitrate_kbps, fps)))
+        self.pipeline = gst.OwnPipeline("%s ! %s ! splitmuxsink name=mux" % (
+            gst.appsrc_text(size_wh, fps), gst.encoder_chain(encoder, bitrate_kbps, fps)))
         mux = self.pipeline.element("mux")
         mux.set_property("location", os.path.join(directory, prefix + "%05d.mkv"))
         mux.set_property("muxer", Gst.ElementFactory.make("matroskamux", None))
@@ -72,7 +65,7 @@ class Recorder:
         self._mux = mux
         self._set_segment_bytes()
         self._appsrc = self.pipeline.element("src")
-        self._feed = AppsrcFeed(self._appsrc, size_wh[0] * size_wh[1] * 3 // 2)
+        self._feed = gst.AppsrcFeed(self._appsrc, size_wh[0] * size_wh[1] * 3 // 2)
         self.pipeline.play()
 
     def _set_segment_bytes(self) -> None:
