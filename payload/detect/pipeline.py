@@ -227,12 +227,7 @@ class Glad:
         if not len(found) and self.cfg.global_.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
             camera = self.ego_motion.estimate(prev, grey, fine=True)
-            motion = self.gmd.detect(prev.full, grey.full, camera)
-            timings[GMD] = _ms(t)
-            if motion.left_out:
-                self._degraded[GMD] = motion.left_out
-            found = self._classify(frame.image, motion.detections, timings)
-            candidates.append(motion.detections)
+            found = self._motion(self.gmd, frame.image, prev.full, grey.full, camera, (0, 0), t, timings, candidates)
         if not len(found) and gad is not None and self.cfg.global_.appearance.enabled:
             scanned = self._scan(frame, timings)
             candidates.append(scanned)
@@ -266,15 +261,9 @@ class Glad:
             found = self._appearance(lad, frame.image, frame.image[y1:y2, x1:x2], (x1, y1), timings, candidates)
         prev = self._prev
         if not len(found) and self.cfg.local.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
-            t = time.perf_counter()
             # the region's camera motion, not one of its own: one estimate a frame
-            motion = self.lmd.detect(prev.full[y1:y2, x1:x2], grey.full[y1:y2, x1:x2], camera.for_crop((x1, y1)),
-                                     offset_xy=(x1, y1))
-            timings[LMD] = _ms(t)
-            if motion.left_out:
-                self._degraded[LMD] = motion.left_out
-            found = self._classify(frame.image, motion.detections, timings)
-            candidates.append(motion.detections)
+            found = self._motion(self.lmd, frame.image, prev.full[y1:y2, x1:x2], grey.full[y1:y2, x1:x2],
+                                 camera.for_crop((x1, y1)), (x1, y1), time.perf_counter(), timings, candidates)
         t = time.perf_counter()
         near, near_distance, far = self._gate(found, predicted)
         best = self._pick(near, near_distance)
@@ -361,6 +350,18 @@ class Glad:
         timings[detector.module] = _ms(t)
         candidates.append(found)
         return self._classify(image, found, timings)
+
+    def _motion(self, detector: MotionDetector, image: np.ndarray, prev: np.ndarray, cur: np.ndarray, camera,
+                offset_xy, t_start: float, timings: Dict[str, float], candidates: List[Detections]) -> Detections:
+        """GMD or LMD on the grey ``prev``/``cur`` (a crop at ``offset_xy``) under ``camera``'s motion,
+        timed from ``t_start``: its hits join ``candidates`` (candidates it left out to keep its time
+        budget are counted in the frame's ``degraded``), those the classifier confirms are returned."""
+        motion = detector.detect(prev, cur, camera, offset_xy=offset_xy)
+        timings[detector.module] = _ms(t_start)
+        if motion.left_out:
+            self._degraded[detector.module] = motion.left_out
+        candidates.append(motion.detections)
+        return self._classify(image, motion.detections, timings)
 
     def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float],
                   threshold: Optional[float] = None) -> Detections:
