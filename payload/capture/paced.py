@@ -11,8 +11,9 @@ frame is stamped at delivery as a camera frame is, and keeps the recording's ind
 As with a camera, the consumer gets the newest frame; one it did not take before the next
 arrived is dropped and counted (``stats.dropped``). A frame decoded only after its successor was
 due is skipped as well and counted apart (``stats.late``): the source, not the consumer, fell
-behind. A recording slower than the rate on every frame therefore delivers nothing but late
-frames: ``late`` says so. A recording is finite and is not a camera to reconnect: however long
+behind; only the recording's last frame, with nothing newer to come, is handed out late. A
+recording slower than the rate on every frame therefore delivers little but its last frame, and
+``late`` says why. A recording is finite and is not a camera to reconnect: however long
 a frame takes it is waited for, and the end of the recording ends the stream (``read()`` raises
 EndOfStream once the last frame was read).
 
@@ -27,7 +28,7 @@ from typing import Optional
 
 import numpy as np
 
-from payload.capture.base import FrameSource, SourceStats
+from payload.capture.base import EndOfStream, FrameSource, SourceStats
 from payload.capture.live import Grabber, LiveReader
 from payload.config import Retry
 from payload.errors import SourceError
@@ -49,21 +50,15 @@ class PacedGrabber(Grabber):
         self._t0: Optional[float] = None  # when the first frame was decoded: its due time
         self._index0 = 0  # the recording's index of that frame
         self._next: Optional[Frame] = None  # decoded, waiting for its time
+        self._late: Optional[Frame] = None  # decoded after its successor was due: skipped if one comes
 
     def grab(self, timeout_s: float) -> Optional[np.ndarray]:
         """One step per call (LiveReader checks for stop between calls): decode the next frame,
         or wait up to timeout_s for the held one's time. EndOfStream at the end of the recording."""
         if self._next is None:
-            frame = self._recording.read(timeout_s)
-            self._stats.unreadable = self._recording.stats.unreadable
-            if frame is None:  # an unreadable frame: its time passes without a frame
+            self._next = self._decode(timeout_s)
+            if self._next is None:
                 return None
-            if self._t0 is None:
-                self._t0, self._index0 = time.monotonic(), frame.index
-            if time.monotonic() > self._due(frame.index + 1):  # its successor is due: it is stale already
-                self._stats.late += 1
-                return None
-            self._next = frame
         wait_s = self._due(self._next.index) - time.monotonic()
         if wait_s > timeout_s:
             time.sleep(max(0.0, timeout_s))
@@ -73,6 +68,28 @@ class PacedGrabber(Grabber):
         frame, self._next = self._next, None
         self.index = frame.index
         return frame.image
+
+    def _decode(self, timeout_s: float) -> Optional[Frame]:
+        """The next frame to hand out, or None: unreadable, or late (held until a newer one comes)."""
+        try:
+            frame = self._recording.read(timeout_s)
+        except EndOfStream:
+            if self._late is None:
+                raise
+            frame, self._late = self._late, None  # the last frame: nothing newer is coming, it goes out late
+            return frame
+        self._stats.unreadable = self._recording.stats.unreadable
+        if frame is None:  # an unreadable frame: its time passes without a frame
+            return None
+        if self._t0 is None:
+            self._t0, self._index0 = time.monotonic(), frame.index
+        if self._late is not None:  # a newer frame came: the late one is skipped
+            self._stats.late += 1
+            self._late = None
+        if time.monotonic() > self._due(frame.index + 1):  # its successor is due already
+            self._late = frame
+            return None
+        return frame
 
     def _due(self, index: int) -> float:
         return self._t0 + (index - self._index0) * self._period_s
