@@ -185,8 +185,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-stream", action="store_true",
                    help="skip the payload-loop runs with the live video on and off (RTSP, a client connected)")
     p.add_argument("--paced", type=float, default=None, metavar="FPS",
-                   help="play the clip as a camera at FPS (decoded on its own thread, newest frame wins): "
-                        "frames dropped and latency from the capture stamp")
+                   help="play the clip as a camera at FPS, as capture.pace does (decoded on its own thread, "
+                        "newest frame wins): frames dropped and late, latency from the capture stamp")
     p.add_argument("--ablation", action="store_true", help="score the Table V configurations and the baselines")
     p.add_argument("--rows", nargs="*", default=None, help="ablation: only these rows, by name")
     p.add_argument("--split", default=None, help="ablation: clips of a split of splits.json, e.g. val")

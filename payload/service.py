@@ -260,7 +260,7 @@ class Service:
                 % (fps, self.stats.frames, src.dropped if src else 0, src.reconnects if src else 0,
                    self._state(), target, link, self.stats.faults))
         # counters of things survived, shown once they happen
-        extra = [("unreadable", src.unreadable if src else 0),
+        extra = [("late", src.late if src else 0), ("unreadable", src.unreadable if src else 0),
                  ("attitude_not_finite", self.bearings.attitude_not_finite),
                  ("bearing_not_finite", self.bearings.bearing_not_finite),
                  ("rows_lost", sum(c.lost for c in (self._detections_csv, self._decisions_csv) if c is not None))]

@@ -18,6 +18,7 @@ from payload.capture import open_source
 from payload.capture.base import EndOfStream, FrameSource
 from payload.capture.file import ImageFolderSource, VideoFileSource
 from payload.capture.gstreamer import GStreamerSource, bgr_pipeline
+from payload.capture.paced import PacedSource
 from payload.capture.v4l2 import V4L2Source
 from payload.config import CaptureConfig, Retry
 from payload.errors import SourceError
@@ -314,35 +315,7 @@ def test_video_file_without_loop_ends(clip20):
             src.read()
 
 
-def test_paced_file_delivers_like_a_camera(clip100):
-    with VideoFileSource(clip100, fps=50.0, pace=True) as src:
-        first = src.read()
-        assert first.index == 0
-        assert src.read(timeout_s=0.001) is None  # frame 1 is not due for 20 ms
-        t = time.monotonic()
-        steady = [src.read(1.0) for _ in range(5)]
-        assert time.monotonic() - t >= 0.07  # waits for each frame like a 50 fps camera
-        time.sleep(0.2)  # a slow consumer: ~10 frames become due meanwhile
-        late = src.read(1.0)
-        dropped = src.stats.dropped
-    assert [f.index for f in steady] == [1, 2, 3, 4, 5]
-    assert 12 <= late.index <= 20, late.index
-    assert dropped == late.index - 6
-    assert _painted_index(late.image) == late.index  # the newest due frame, really decoded
-    for f in steady + [late]:
-        assert f.t_capture_ns - first.t_capture_ns == int(round(f.index * 1e9 / 50.0))
-
-
-def test_paced_looping_folder(tmp_path):
-    for i in range(3):
-        cv2.imwrite(str(tmp_path / ("%d.png" % i)), np.full((8, 8, 3), _level(i), np.uint8))
-    with ImageFolderSource(str(tmp_path), fps=100.0, loop=True, pace=True) as src:
-        src.read()
-        time.sleep(0.095)
-        frame = src.read(1.0)
-    assert frame.index >= 9
-    assert int(frame.image[0, 0, 0]) == _level(frame.index % 3)
-    assert src.stats.dropped == frame.index - 1
+# paced recordings (capture.pace): tests/test_paced.py
 
 
 def test_image_folder_is_in_numeric_order(tmp_path):
@@ -410,11 +383,11 @@ def test_missing_v4l2_device_is_one_line_error():
 def test_open_source_builds_each_kind(clip20, tmp_path):
     cv2.imwrite(str(tmp_path / "1.png"), np.zeros((4, 4, 3), np.uint8))
     src = open_source(CaptureConfig(source="file", path=clip20, loop=True))
-    assert isinstance(src, VideoFileSource) and src.loop and not src.pace
+    assert isinstance(src, VideoFileSource) and src.loop
     with src:
         assert src.read().index == 0
     src = open_source(CaptureConfig(source="folder", path=str(tmp_path), pace=True, fps=10))
-    assert isinstance(src, ImageFolderSource) and src.pace and src.fps == 10
+    assert isinstance(src, PacedSource) and isinstance(src.recording, ImageFolderSource) and src.fps == 10
     with src:
         assert src.read().image.shape == (4, 4, 3)
     src = open_source(CaptureConfig(source="v4l2", device="/dev/video9", width=640, height=480, fourcc="YUYV"))
@@ -444,7 +417,7 @@ def test_unpaced_synthetic_frames_follow_the_scene_timeline():
     from payload.config import SyntheticSceneConfig
 
     cfg = SyntheticSceneConfig(seed=3, width=320, height=240, fps=25.0, frames=4)
-    with SyntheticSource(cfg, pace=False) as src:
+    with SyntheticSource(cfg) as src:
         frames = [src.read() for _ in range(4)]
         with pytest.raises(EndOfStream):
             src.read()
@@ -459,8 +432,12 @@ def test_corrupt_and_empty_images_are_skipped_and_counted(tmp_path, pace):
         cv2.imwrite(str(tmp_path / ("%02d.jpg" % i)), np.full((8, 8, 3), 30 * i, np.uint8))
     (tmp_path / "02.jpg").write_bytes(b"\xff\xd8\xff\xe0 not a jpeg")
     (tmp_path / "05.jpg").write_bytes(b"")
-    src = ImageFolderSource(str(tmp_path), fps=200.0, pace=pace)
+    src = open_source(CaptureConfig(source="folder", path=str(tmp_path), fps=200.0, pace=pace))
     with src:
         got = list(src)
-    assert [f.index for f in got] == [0, 1, 3, 4, 6, 7]  # each keeps its place (and time) on the timeline
-    assert src.stats.unreadable == 2 and src.stats.frames == 6
+    indices = [f.index for f in got]  # each keeps its place (and time) on the timeline
+    if pace:  # a loaded machine may drop a frame or decode it late: counted below
+        assert set(indices) <= {0, 1, 3, 4, 6, 7} and indices[-1] == 7
+    else:
+        assert indices == [0, 1, 3, 4, 6, 7]
+    assert src.stats.unreadable == 2 and src.stats.frames + src.stats.dropped + src.stats.late == 6

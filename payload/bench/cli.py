@@ -8,8 +8,9 @@ scene (capture.synthetic in the config: 1920x1080 by default) to a temporary MP4
 labels, so decoding is real video decoding, as from a file. The payload loop then runs three
 times more, with the live video on, off, on (video section of the config, RTSP with a client
 connected), and the best FPS off and on are printed; --no-stream skips those runs. With --paced
-FPS the clip plays as a camera at that rate (decoded on its own thread, newest frame wins) and
-the frames the loop missed are printed with the latency from capture stamp to MAVLink send.
+FPS the clip plays as a camera at that rate through the service's paced source (capture.pace:
+decoded on its own thread, newest frame wins) and the frames the loop missed (dropped) and the
+source decoded too late (late) are printed with the latency from capture stamp to MAVLink send.
 """
 
 import json

@@ -15,9 +15,10 @@ Two passes over the same frames:
 
 Unpaced, each frame is read as soon as the previous one went through, and its latency runs from
 the moment it is asked of the source (so decoding counts, as the camera's own delivery would).
-With ``paced_fps`` the clip plays as a camera at that rate instead (payload.capture.paced:
-decoded on its own thread, newest frame wins): frames the loop misses are dropped and counted,
-and latency runs from the frame's capture stamp. Either way it ends when the link thread has
+With ``paced_fps`` the clip plays as a camera at that rate instead, through the service's own
+paced path (``capture.pace``: payload.capture.paced, decoded on its own thread, newest frame
+wins): frames the loop misses are dropped and counted, frames decoded too late are counted as
+late, and latency runs from the frame's capture stamp. Either way it ends when the link thread has
 written the frame's last message to the socket (``MavlinkLink.on_written``), or, for a frame
 that sends nothing, when its step returns.
 """
@@ -35,7 +36,6 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from payload.capture import EndOfStream, open_source
-from payload.capture.paced import PacedRecording
 from payload.config import Config
 from payload.errors import SourceError
 from payload.geometry import BearingModel, GeoModel
@@ -222,7 +222,9 @@ def _loop_pass(cfg: Config, capture, runner, link, publisher, frames: int, video
     clock = _WriteClock(link)
     out = _Pass()
     ends: List[Tuple[int, int, int]] = []  # per frame: (start ns, end of step ns, last message queued or 0)
-    source = PacedRecording(capture.path, paced_fps) if paced_fps else open_source(capture)
+    if paced_fps:  # the service's paced path (capture.pace), at the bench's rate
+        capture = capture.model_copy(update={"pace": True, "fps": paced_fps})
+    source = open_source(capture)
     with source as frames_in:
         runner.reset()
         t_start = time.perf_counter()
@@ -250,7 +252,7 @@ def _loop_pass(cfg: Config, capture, runner, link, publisher, frames: int, video
             out.size_wh = frame.size_wh
         out.elapsed_s = time.perf_counter() - t_start
         if paced_fps:
-            out.dropped, out.late = source.stats.dropped, source.late
+            out.dropped, out.late = source.stats.dropped, source.stats.late
     deadline = time.monotonic() + _DRAIN_S  # the link thread writes the last frame's messages
     while ends and ends[-1][2] and clock.at(ends[-1][2]) is None and time.monotonic() < deadline:
         time.sleep(0.005)

@@ -13,13 +13,14 @@ from payload.types import Frame
 
 
 class EndOfStream(Exception):
-    """A finite source (file, folder, synthetic clip) has no more frames."""
+    """A finite source (file, folder, synthetic clip, paced or not) has no more frames."""
 
 
 @dataclass
 class SourceStats:
     frames: int = 0  # frames handed out by read()/iteration
     dropped: int = 0  # frames captured but replaced by a newer one before being read
+    late: int = 0  # paced recordings: frames decoded after their successor was due, skipped
     reconnects: int = 0  # successful re-opens after a loss
     unreadable: int = 0  # recorded frames that could not be decoded (corrupt or empty image), skipped
     connected: bool = False

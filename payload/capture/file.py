@@ -2,13 +2,11 @@
 
 Frame ``index`` is 0-based and keeps counting when ``loop`` starts the recording again, so it
 never goes backwards. Capture times follow the recording's own timeline,
-``t = t_start + index / fps`` (the file's frame rate, or ``fps`` for folders and for ``pace``),
-so that time-based stages see the real interval between frames however fast we process.
+``t = t_start + index / fps`` (the file's frame rate, or ``fps`` for folders), so that
+time-based stages see the real interval between frames however fast we process.
 
-``pace`` makes a recording behave like a camera running at ``fps``: frame k is due at
-``t_start + k / fps`` (the clock starts at the first read); ``read()`` returns the newest due
-frame, skipping and counting as dropped the ones that became stale while the caller was busy,
-and waits (at most timeout_s, then None) when the next frame is not due yet.
+These readers are unpaced: each ``read()`` decodes the next frame at once. Played at camera
+rate (``capture.pace``), they are read by payload.capture.paced's thread instead.
 """
 
 import abc
@@ -16,7 +14,6 @@ import logging
 import math
 import os
 import re
-import time
 from typing import List, Optional
 
 import cv2
@@ -37,17 +34,16 @@ UNREADABLE = np.empty((0,), np.uint8)
 
 
 class _Recording(FrameSource):
-    """The timeline, loop and pace logic shared by video files and image folders."""
+    """The timeline and loop logic shared by video files and image folders."""
 
-    def __init__(self, path: str, fps: float = 30.0, loop: bool = False, pace: bool = False) -> None:
+    def __init__(self, path: str, fps: float = 30.0, loop: bool = False) -> None:
         super().__init__()
         if not fps > 0:
             raise SourceError("capture.fps: %r: expected a positive frame rate" % (fps,))
         self.path = path
         self.fps = float(fps)
         self.loop = loop
-        self.pace = pace
-        self._rate_fps = self.fps  # timeline rate: the file's own rate unless paced
+        self._rate_fps = self.fps  # timeline rate: the file's own rate if it has one
         self._pos = 0  # position in the current pass through the recording
         self._pass_offset = 0  # timeline index of this pass's first frame
         self._t0 = None  # (mono, wall) of timeline index 0
@@ -60,8 +56,8 @@ class _Recording(FrameSource):
         """Open (or reopen at the start); return the recording's frame rate if it has one."""
 
     @abc.abstractmethod
-    def _next_image(self, decode: bool) -> Optional[np.ndarray]:
-        """The image at self._pos (None at the end); with decode=False only step over it."""
+    def _next_image(self) -> Optional[np.ndarray]:
+        """The image at self._pos (None at the end, UNREADABLE if it cannot be decoded)."""
 
     @abc.abstractmethod
     def _close_media(self) -> None:
@@ -73,14 +69,13 @@ class _Recording(FrameSource):
         if self._opened:
             return
         native_fps = self._open_media()
-        if not self.pace and native_fps is not None and math.isfinite(native_fps) and native_fps > 0:
+        if native_fps is not None and math.isfinite(native_fps) and native_fps > 0:
             self._rate_fps = float(native_fps)
         self._opened = True
         self.stats.connected = True
-        if not self.pace:
-            self._t0 = now_ns()
-        log.info("recording opened source=%s path=%s timeline_fps=%.3f loop=%s pace=%s",
-                 self.name, self.path, self._rate_fps, self.loop, self.pace)
+        self._t0 = now_ns()
+        log.info("recording opened source=%s path=%s timeline_fps=%.3f loop=%s",
+                 self.name, self.path, self._rate_fps, self.loop)
 
     def close(self) -> None:
         if self._opened:
@@ -91,30 +86,13 @@ class _Recording(FrameSource):
     def read(self, timeout_s: float = 1.0) -> Optional[Frame]:
         if not self._opened:
             raise SourceError("%s: %s: read before open()" % (self.name, self.path))
-        if not self.pace:
-            return self._take(decode=True)
-        if self._t0 is None:  # a paced recording starts its clock at the first read
-            self._t0 = now_ns()
-        nxt = self._pass_offset + self._pos
-        elapsed_s = (time.monotonic_ns() - self._t0[0]) / 1e9
-        due = int(math.floor(elapsed_s * self._rate_fps + 1e-9))
-        if due < nxt:
-            wait_s = nxt / self._rate_fps - elapsed_s
-            if wait_s > timeout_s:
-                time.sleep(max(0.0, timeout_s))
-                return None
-            time.sleep(max(0.0, wait_s))
-            due = nxt
-        for _ in range(due - nxt):  # newest frame wins: step over the stale ones
-            self._take(decode=False)
-            self.stats.dropped += 1
-        return self._take(decode=True)
+        return self._take()
 
     # --- timeline ---------------------------------------------------------------------------
 
-    def _take(self, decode: bool) -> Optional[Frame]:
+    def _take(self) -> Optional[Frame]:
         """The next frame on the timeline (rewinding when looping), or EndOfStream."""
-        image = self._next_image(decode)
+        image = self._next_image()
         if image is None:
             if not self.loop or self._pos == 0:
                 raise EndOfStream()
@@ -122,13 +100,11 @@ class _Recording(FrameSource):
             self._pos = 0
             self._close_media()
             self._open_media()
-            image = self._next_image(decode)
+            image = self._next_image()
             if image is None:
                 raise EndOfStream()
         index = self._pass_offset + self._pos
         self._pos += 1
-        if not decode:
-            return None
         if image is UNREADABLE:  # its place on the timeline stays taken: later frames keep their times
             self.stats.unreadable += 1
             return None
@@ -149,8 +125,8 @@ def _need_path(path: Optional[str], what: str, want_dir: bool) -> str:
 class VideoFileSource(_Recording):
     """A video file read with OpenCV (FFmpeg backend on PyPI's OpenCV)."""
 
-    def __init__(self, path: str, fps: float = 30.0, loop: bool = False, pace: bool = False) -> None:
-        super().__init__(path, fps=fps, loop=loop, pace=pace)
+    def __init__(self, path: str, fps: float = 30.0, loop: bool = False) -> None:
+        super().__init__(path, fps=fps, loop=loop)
         self._cap = None  # type: Optional[cv2.VideoCapture]
         self._first = None  # type: Optional[np.ndarray]
 
@@ -165,14 +141,12 @@ class VideoFileSource(_Recording):
         self._first = first  # decoded to prove the file is readable; handed out as frame 0
         return cap.get(cv2.CAP_PROP_FPS)
 
-    def _next_image(self, decode: bool) -> Optional[np.ndarray]:
+    def _next_image(self) -> Optional[np.ndarray]:
         if self._first is not None:
             image, self._first = self._first, None
             return image
         if self._cap is None:
             return None
-        if not decode:
-            return np.empty((0,), np.uint8) if self._cap.grab() else None
         ok, image = self._cap.read()
         return image if ok else None
 
@@ -191,8 +165,8 @@ def _natural_key(name: str) -> List:
 class ImageFolderSource(_Recording):
     """The images of one folder, in numerical order of the numbers in their names."""
 
-    def __init__(self, path: str, fps: float = 30.0, loop: bool = False, pace: bool = False) -> None:
-        super().__init__(path, fps=fps, loop=loop, pace=pace)
+    def __init__(self, path: str, fps: float = 30.0, loop: bool = False) -> None:
+        super().__init__(path, fps=fps, loop=loop)
         self.files = []  # type: List[str]
 
     def _open_media(self) -> Optional[float]:
@@ -204,11 +178,9 @@ class ImageFolderSource(_Recording):
             self.files = [os.path.join(self.path, n) for n in sorted(names, key=_natural_key)]
         return None
 
-    def _next_image(self, decode: bool) -> Optional[np.ndarray]:
+    def _next_image(self) -> Optional[np.ndarray]:
         if self._pos >= len(self.files):
             return None
-        if not decode:
-            return np.empty((0,), np.uint8)
         path = self.files[self._pos]
         image = cv2.imread(path, cv2.IMREAD_COLOR)
         if image is None:  # corrupt, empty, or gone since listed: skip it, the recording goes on

@@ -5,7 +5,9 @@ A camera does not wait for the detector: a thread grabs continuously, stamps eac
 read them. When the camera is lost it logs once, reconnects with exponential back-off and logs
 the recovery; meanwhile ``read()`` returns None so that the service loop keeps control.
 A finite source played as a camera (``finite``: a recording at camera rate, payload.capture.paced)
-ends instead: once its last frame was read, ``read()`` raises EndOfStream.
+is never lost: a slow frame is waited for however long it takes, and the end of the recording
+(or a recording that fails mid-way, logged) ends the stream: once its last frame was read,
+``read()`` raises EndOfStream.
 """
 
 import logging
@@ -28,6 +30,10 @@ _END = "end of stream"
 class Grabber:
     """One open connection to a camera. ``LiveReader`` calls it from its thread only."""
 
+    #: The frame index of the image last grabbed, for a source that has its own numbering (a paced
+    #: recording: the recording's index, so frames it skipped leave gaps); None: numbered by the reader.
+    index = None  # type: Optional[int]
+
     def grab(self, timeout_s: float) -> Optional[np.ndarray]:
         """The next BGR image; None when none came within timeout_s; CameraLost when the camera is gone."""
         raise NotImplementedError
@@ -41,12 +47,13 @@ class LiveReader:
 
     ``connect()`` opens a new ``Grabber`` or raises a PayloadError (SourceError) saying why.
     ``stall_s``: a camera that delivers nothing for this long counts as lost, even without an error.
-    ``finite``: the grabber's EndOfStream ends the stream rather than losing the camera.
+    ``finite``: a recording, not a camera: never stalled nor reconnected (``connect`` may be None);
+    the grabber's EndOfStream, or its failure, ends the stream.
     """
 
     def __init__(
         self,
-        connect: Callable[[], Grabber],
+        connect: Optional[Callable[[], Grabber]],
         retry: Retry,
         stats: SourceStats,
         name: str,
@@ -111,7 +118,9 @@ class LiveReader:
                 grabber = None
                 if self._stop.is_set():
                     break
-                if self._finite and reason == _END:
+                if self._finite:
+                    if reason != _END:  # a recording is not reopened: what it delivered is what there is
+                        log.warning("recording failed, stream ended source=%s reason=%s", self._name, reason)
                     with self._cond:  # read() hands out the last frame, then raises EndOfStream
                         self._closed = True
                         self._cond.notify_all()
@@ -138,14 +147,17 @@ class LiveReader:
             except Exception as exc:  # a driver error mid-stream is a loss, not a crash of the thread
                 return "%s: %s" % (type(exc).__name__, exc)
             if image is None:
-                if time.monotonic() - last_s > self._stall_s:
+                # a recording waits for its next frame's time, or decodes slowly (a first frame
+                # seconds away): that is no lost camera, and its end comes as EndOfStream
+                if not self._finite and time.monotonic() - last_s > self._stall_s:
                     return "no frame for %.1f s" % self._stall_s
                 continue
             t_capture_ns, t_wall_ns = now_ns()
             last_s = time.monotonic()
+            index = grabber.index if grabber.index is not None else self._next_index
             with self._cond:
-                frame = Frame(image=image, index=self._next_index, t_capture_ns=t_capture_ns, t_wall_ns=t_wall_ns)
-                self._next_index += 1
+                frame = Frame(image=image, index=index, t_capture_ns=t_capture_ns, t_wall_ns=t_wall_ns)
+                self._next_index = index + 1
                 if not self._latest_read:
                     self._stats.dropped += 1
                 self._latest = frame

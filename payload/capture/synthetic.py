@@ -1,7 +1,6 @@
 """A FrameSource that renders the synthetic air-to-air scene (demo, tests, bench without a camera)."""
 
 import logging
-import time
 from typing import Iterator, Optional
 
 from payload.capture.base import EndOfStream, FrameSource, now_ns
@@ -20,30 +19,28 @@ def scene_of(cfg: SyntheticSceneConfig) -> Scene:
 
 
 class SyntheticSource(FrameSource):
-    """Frames of ``scene_of(cfg)``, stamped with the clock at delivery when paced, else with the
-    scene's own timeline (1/fps apart, like a recording).
+    """Frames of ``scene_of(cfg)`` as fast as they are asked for, stamped with the scene's own
+    timeline (1/fps apart, like a recording) so that the search region's motion model sees 1/fps
+    between frames, not the render time. Played at camera rate (``capture.pace``) it is read by
+    payload.capture.paced's thread, which drops what a slow consumer misses, as a camera does.
 
-    ``pace=True`` delivers at ``cfg.fps`` like a camera (waiting, never dropping). The ground
-    truth of the frame last read is ``last_truth`` (a SceneFrame).
+    The ground truth of the frame last read is ``last_truth`` (a SceneFrame).
     """
 
     live = False
 
-    def __init__(self, cfg: SyntheticSceneConfig, pace: bool = False):
+    def __init__(self, cfg: SyntheticSceneConfig):
         super().__init__()
         self.cfg = cfg
-        self.pace = pace
         self.last_truth: Optional[SceneFrame] = None
         self._frames: Optional[Iterator[SceneFrame]] = None
-        self._next_due_ns = 0
         self._t0 = None
 
     def open(self) -> None:
         if self._frames is not None:
             return
         self._frames = iter(scene_of(self.cfg))
-        self._next_due_ns = time.monotonic_ns()
-        self._t0 = None  # (mono, wall) of scene frame 0 when unpaced
+        self._t0 = None  # (mono, wall) of scene frame 0, read with it
         self.stats.connected = True
         log.info("synthetic source open seed=%d size=%dx%d fps=%.1f frames=%d", self.cfg.seed, self.cfg.width,
                  self.cfg.height, self.cfg.fps, self.cfg.frames)
@@ -56,24 +53,13 @@ class SyntheticSource(FrameSource):
         except StopIteration:
             self.stats.connected = False
             raise EndOfStream() from None
-        if self.pace:
-            wait_ns = self._next_due_ns - time.monotonic_ns()
-            if wait_ns > 0:
-                time.sleep(wait_ns / 1e9)
-            self._next_due_ns = max(self._next_due_ns, time.monotonic_ns() - int(1e9 / self.cfg.fps)) + int(
-                1e9 / self.cfg.fps)
-        if self.pace:
-            t_capture_ns, t_wall_ns = now_ns()
-        else:
-            # unpaced (eval, bench): capture times follow the scene's own timeline, as for a recording,
-            # so that the search region's motion model sees 1/fps between frames, not the render time
-            if self._t0 is None:
-                self._t0 = now_ns()
-            offset_ns = int(round(truth.index * 1e9 / self.cfg.fps))
-            t_capture_ns, t_wall_ns = self._t0[0] + offset_ns, self._t0[1] + offset_ns
+        if self._t0 is None:
+            self._t0 = now_ns()
+        offset_ns = int(round(truth.index * 1e9 / self.cfg.fps))
         self.last_truth = truth
         self.stats.frames += 1
-        return Frame(image=truth.image, index=truth.index, t_capture_ns=t_capture_ns, t_wall_ns=t_wall_ns)
+        return Frame(image=truth.image, index=truth.index, t_capture_ns=self._t0[0] + offset_ns,
+                     t_wall_ns=self._t0[1] + offset_ns)
 
     def close(self) -> None:
         if self._frames is not None:

@@ -61,7 +61,8 @@ class CaptureConfig(Section):
     fourcc: str = Field("MJPG", min_length=4, max_length=4)
     pipeline: Optional[str] = Field(None, description="GStreamer pipeline ending in appsink (source gstreamer).")
     loop: bool = Field(False, description="file/folder: start again at the end.")
-    pace: bool = Field(False, description="file/folder: deliver at fps like a live camera (newest frame wins).")
+    pace: bool = Field(False, description="file/folder/synthetic: deliver at fps (synthetic: its own fps) like a "
+                                          "live camera (newest frame wins; missed frames dropped).")
     retry: Retry = Retry()
     synthetic: SyntheticSceneConfig = SyntheticSceneConfig()
 

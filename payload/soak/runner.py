@@ -101,8 +101,8 @@ class Soak:
             raise PayloadError("soak: --clip-frames %d, --fps %g, --size %dx%d: expected at least 2 frames, a positive "
                                "rate and 64x64 or more" % (a.clip_frames, a.fps, a.size[0], a.size[1]))
         pass_s = (2 * a.clip_frames - 2) / a.fps  # the folder plays forwards then backwards
-        # Corrupt frames stay for two passes: a paced source steps over frames that went stale
-        # while the service was busy, and the fault only counts once one was read.
+        # Corrupt frames stay for two passes: a paced source drops frames that went stale while
+        # the service was busy (or were decoded late), and the fault only counts once one was read.
         self.hold_s = 2.0 * pass_s + 0.5
         if "corrupt_frames" in self.kinds and self.hold_s > self.plan.every_s - 1.0:
             raise PayloadError("soak: corrupt frames stay %.1f s (two passes through the clip), longer than the "
