@@ -26,6 +26,14 @@ def draw_result(image: np.ndarray, result: GladResult, status: Optional[str] = N
         cv2.rectangle(out, (x1 - pad, y1 - pad), (x2 + pad, y2 + pad), colour, 2)
         cv2.putText(out, "%s %.2f" % (module, score), (x1 - pad, max(12, y1 - pad - 4)),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+    for other in result.targets:
+        if other.primary:
+            continue
+        # the targets reported beside the one sent: thin, with their ids (what an operator designates)
+        x1, y1, x2, y2 = (int(round(v * s)) for v, s in zip(other.target.xyxy, (sx, sy, sx, sy)))
+        cv2.rectangle(out, (x1 - 4, y1 - 4), (x2 + 4, y2 + 4), (200, 200, 200), 1)
+        cv2.putText(out, "#%d" % other.id, (x1 - 4, max(12, y1 - 8)), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                    (200, 200, 200), 1, cv2.LINE_AA)
     if result.target is not None and not result.target.measured:
         cx, cy = int(result.target.center[0] * sx), int(result.target.center[1] * sy)
         cv2.drawMarker(out, (cx, cy), (0, 0, 255), cv2.MARKER_CROSS, 16, 1)

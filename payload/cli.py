@@ -118,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("detect", help="run GLAD over a video file or image folder and write detections CSV")
     p.add_argument("source", help="video file or image folder")
-    p.add_argument("--out", required=True, help="detections CSV: frame,x,y,w,h,score,module")
+    p.add_argument("--out", required=True, help="detections CSV: frame,x,y,w,h,score,module,target_id,primary (every reported target; primary 1: the one sent)")
     p.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
     p.add_argument("--video", default=None, help="also write an annotated video here")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

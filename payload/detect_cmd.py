@@ -13,7 +13,7 @@ def main_detect(args) -> int:
     with DetectionsCsvWriter(args.out) as writer:
         try:
             for frame, result in iter_glad(args.source, cfg, progress=not args.no_progress):
-                writer.write(frame.index, result.detections)
+                writer.write_result(frame.index, result)  # every reported target, the primary flagged
                 frames += 1
                 hits += bool(len(result.detections))
                 if video is not None:

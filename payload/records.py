@@ -1,11 +1,16 @@
 """The CSV records: detections (written by ``detect`` and the service, read by ``eval``) and the
 service's decisions.
 
-Detections: one row per detection, ``frame,x,y,w,h,score,module`` with ``frame`` 0-based,
-``x,y`` the top-left corner in full-frame pixels (0-based), ``w,h`` in pixels and ``module``
-one of GAD, GMD, LAD, LMD. A frame without detections has no row.
+Detections: one row per detection, ``frame,x,y,w,h,score,module,target_id,primary`` with
+``frame`` 0-based, ``x,y`` the top-left corner in full-frame pixels (0-based), ``w,h`` in pixels,
+``module`` one of GAD, GMD, LAD, LMD, ``target_id`` the target's id (empty for a detector that
+follows no targets) and ``primary`` 1 for the target sent to the autopilot, 0 for the others GLAD
+reports beside it. A frame without detections has no row. Files written before issue 16 lack the
+last two columns: each of their rows counts as primary. ``glad-payload eval`` scores the primary
+rows only, so its figures stay comparable with single-target runs.
 
-Decisions (service only): one row per processed frame, what the switcher decided and what was sent.
+Decisions (service only): one row per processed frame, what the switcher decided and what was sent,
+and how many targets were reported.
 
 The service writes both through ``CsvLog``: appended to across restarts, rotated by size, and
 never stopping detection when the disk is full or the folder is gone (reported once).
@@ -16,7 +21,8 @@ import logging
 import math
 import os
 import time
-from typing import Any, Dict, List, Optional, Sequence, TextIO
+from dataclasses import dataclass
+from typing import Any, Dict, List, Optional, Sequence, TextIO, Tuple
 
 import numpy as np
 
@@ -25,13 +31,43 @@ from payload.types import MODULES, Detections
 
 log = logging.getLogger(__name__)
 
-HEADER = ("frame", "x", "y", "w", "h", "score", "module")
+HEADER = ("frame", "x", "y", "w", "h", "score", "module", "target_id", "primary")
+#: The header before targets had ids (issue 16): still read, every row primary.
+HEADER_SINGLE = HEADER[:7]
 
 
-def detection_rows(frame_index: int, dets: Detections) -> List[tuple]:
-    """The detections CSV rows of one frame."""
-    return [(int(frame_index), "%.2f" % x, "%.2f" % y, "%.2f" % w, "%.2f" % h, "%.4f" % score, str(module))
+@dataclass(frozen=True)
+class DetectionRow:
+    """One row of a detections CSV."""
+
+    frame: int
+    xywh: Tuple[float, float, float, float]
+    score: float
+    module: str
+    target_id: Optional[int]  # None: not a followed target's (a baseline's, or a file without the column)
+    primary: bool
+
+
+def detection_rows(frame_index: int, dets: Detections, target_id: Optional[int] = None,
+                   primary: bool = True) -> List[tuple]:
+    """The detections CSV rows of one frame's ``dets`` (of target ``target_id`` when given)."""
+    tid = "" if target_id is None else str(int(target_id))
+    flag = "1" if primary else "0"
+    return [(int(frame_index), "%.2f" % x, "%.2f" % y, "%.2f" % w, "%.2f" % h, "%.4f" % score, str(module), tid, flag)
             for (x, y, w, h), score, module in zip(dets.xywh, dets.score, dets.module)]
+
+
+def result_rows(frame_index: int, result: Any) -> List[tuple]:
+    """The detections CSV rows of one frame's GladResult: each reported target measured this frame,
+    with its id, the primary flagged; a detector that lists no targets (a baseline): its detections,
+    all primary."""
+    targets = getattr(result, "targets", ())
+    if not targets:
+        return detection_rows(frame_index, result.detections)
+    rows: List[tuple] = []
+    for t in targets:
+        rows += detection_rows(frame_index, t.detections, t.id, t.primary)
+    return rows
 
 
 class DetectionsCsvWriter:
@@ -50,15 +86,23 @@ class DetectionsCsvWriter:
         self._file.flush()
         self.rows = 0
 
-    def write(self, frame_index: int, dets: Detections) -> None:
+    def write(self, frame_index: int, dets: Detections, target_id: Optional[int] = None, primary: bool = True) -> None:
+        """One frame's detections (of target ``target_id`` when given)."""
+        self._write(frame_index, detection_rows(frame_index, dets, target_id, primary))
+
+    def write_result(self, frame_index: int, result: Any) -> None:
+        """One frame's GladResult: every reported target measured this frame (``result_rows``)."""
+        self._write(frame_index, result_rows(frame_index, result))
+
+    def _write(self, frame_index: int, rows: List[tuple]) -> None:
         if self._file is None:
             raise ValueError("DetectionsCsvWriter(%s) is closed" % self.path)
         if frame_index < 0:
             raise ValueError("frame_index must be >= 0, got %d" % frame_index)
-        if not len(dets):
+        if not rows:
             return
-        self._csv.writerows(detection_rows(frame_index, dets))
-        self.rows += len(dets)
+        self._csv.writerows(rows)
+        self.rows += len(rows)
         self._file.flush()
 
     def close(self) -> None:
@@ -84,56 +128,83 @@ def parse_finite(path: str, line: int, name: str, text: str) -> float:
     return value
 
 
-def read_detections_csv(path: str) -> Dict[int, Detections]:
-    """Frame index -> Detections of that frame (frames without rows are absent)."""
+def read_detection_rows(path: str) -> List[DetectionRow]:
+    """Every row of a detections CSV, with or without the target columns, in file order."""
     try:
         handle = open(path, newline="", encoding="utf-8")
     except OSError as exc:
         raise DataError("%s: cannot read detections CSV: %s" % (path, exc.strerror or exc)) from None
-    rows: Dict[int, List[list]] = {}
+    out: List[DetectionRow] = []
     with handle:
         reader = csv.reader(handle)
         try:
             header = next(reader, None)
-            if header is None or tuple(c.strip() for c in header) != HEADER:
+            columns = tuple(c.strip() for c in header) if header is not None else None
+            if columns not in (HEADER, HEADER_SINGLE):
                 raise DataError(
-                    "%s:1: header %s, expected %s"
-                    % (path, ",".join(header) if header else "<empty file>", ",".join(HEADER))
+                    "%s:1: header %s, expected %s (or, written before targets had ids, %s)"
+                    % (path, ",".join(header) if header else "<empty file>", ",".join(HEADER), ",".join(HEADER_SINGLE))
                 )
             for row in reader:
                 line = reader.line_num
                 if not row or not "".join(row).strip():
                     continue
-                if len(row) != len(HEADER):
-                    raise DataError("%s:%d: %d fields, expected %d (%s)" % (path, line, len(row), len(HEADER), ",".join(HEADER)))
-                try:
-                    frame = int(row[0])
-                except ValueError:
-                    raise DataError("%s:%d: frame=%r is not an integer" % (path, line, row[0])) from None
-                if frame < 0:
-                    raise DataError("%s:%d: frame=%d must be >= 0" % (path, line, frame))
-                x, y, w, h, score = (parse_finite(path, line, n, t) for n, t in zip(HEADER[1:6], row[1:6]))
-                if w < 0 or h < 0:
-                    raise DataError("%s:%d: w=%s, h=%s must be >= 0" % (path, line, row[3], row[4]))
-                module = row[6].strip()
-                if module not in MODULES:
-                    raise DataError("%s:%d: module=%r, expected one of %s" % (path, line, module, "|".join(MODULES)))
-                rows.setdefault(frame, []).append([x, y, w, h, score, module])
+                if len(row) != len(columns):
+                    raise DataError("%s:%d: %d fields, expected %d (%s)" % (path, line, len(row), len(columns), ",".join(columns)))
+                out.append(_detection_row(path, line, row))
         except csv.Error as exc:
             raise DataError("%s:%d: %s" % (path, reader.line_num, exc)) from None
         except UnicodeDecodeError:
             raise DataError("%s: not a UTF-8 text file" % path) from None
+    return out
+
+
+def _detection_row(path: str, line: int, row: List[str]) -> DetectionRow:
+    try:
+        frame = int(row[0])
+    except ValueError:
+        raise DataError("%s:%d: frame=%r is not an integer" % (path, line, row[0])) from None
+    if frame < 0:
+        raise DataError("%s:%d: frame=%d must be >= 0" % (path, line, frame))
+    x, y, w, h, score = (parse_finite(path, line, n, t) for n, t in zip(HEADER[1:6], row[1:6]))
+    if w < 0 or h < 0:
+        raise DataError("%s:%d: w=%s, h=%s must be >= 0" % (path, line, row[3], row[4]))
+    module = row[6].strip()
+    if module not in MODULES:
+        raise DataError("%s:%d: module=%r, expected one of %s" % (path, line, module, "|".join(MODULES)))
+    target_id, primary = None, True
+    if len(row) > 7:
+        text = row[7].strip()
+        if text:
+            if not text.isdigit():
+                raise DataError("%s:%d: target_id=%r, expected a whole number >= 0 or empty" % (path, line, row[7]))
+            target_id = int(text)
+        flag = row[8].strip()
+        if flag not in ("0", "1"):
+            raise DataError("%s:%d: primary=%r, expected 1 (the target sent) or 0" % (path, line, row[8]))
+        primary = flag == "1"
+    return DetectionRow(frame, (x, y, w, h), score, module, target_id, primary)
+
+
+def read_detections_csv(path: str, primary_only: bool = True) -> Dict[int, Detections]:
+    """Frame index -> Detections of that frame (frames without rows are absent): the primary
+    target's rows (what ``eval`` scores; every row of a file without the target columns), or
+    every row with ``primary_only`` False."""
+    rows: Dict[int, List[DetectionRow]] = {}
+    for r in read_detection_rows(path):
+        if r.primary or not primary_only:
+            rows.setdefault(r.frame, []).append(r)
     out: Dict[int, Detections] = {}
     for frame in sorted(rows):
-        xywh = np.array([r[:4] for r in rows[frame]], np.float32)
-        out[frame] = Detections.from_xywh(xywh, [r[4] for r in rows[frame]], [r[5] for r in rows[frame]])
+        xywh = np.array([r.xywh for r in rows[frame]], np.float32)
+        out[frame] = Detections.from_xywh(xywh, [r.score for r in rows[frame]], [r.module for r in rows[frame]])
     log.debug("read detections path=%s frames=%d rows=%d", path, len(out), sum(len(d) for d in out.values()))
     return out
 
 
 DECISION_FIELDS = ("frame", "t_capture_ns", "t_wall_ns", "mode", "state", "module", "score", "x", "y", "w", "h",
                    "region_x", "region_y", "region_w", "region_h", "az_body_rad", "el_body_rad", "az_level_rad",
-                   "el_level_rad", "messages_sent", "lock_p")
+                   "el_level_rad", "messages_sent", "lock_p", "targets")
 
 
 def decision_row(frame: Any, result: Any, bearing: Any, sent: int) -> tuple:
@@ -148,9 +219,11 @@ def decision_row(frame: Any, result: Any, bearing: Any, sent: int) -> tuple:
         angles = ["%.5f" % v if v is not None else "" for v in
                   (bearing.az_body_rad, bearing.el_body_rad, bearing.az_level_rad, bearing.el_level_rad)]
     lock_p = result.lock_p
+    # the targets reported this frame (GLAD lists them; a detector that does not has its one or none)
+    targets = len(getattr(result, "targets", ())) or int(t is not None)
     return (frame.index, frame.t_capture_ns, frame.t_wall_ns, result.mode, result.state,
             "" if t is None else t.module, "" if t is None else "%.3f" % t.score, *box, *region, *angles, int(sent),
-            "%.3f" % lock_p if lock_p == lock_p else "")
+            "%.3f" % lock_p if lock_p == lock_p else "", targets)
 
 
 class CsvLog:

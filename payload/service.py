@@ -250,6 +250,10 @@ class Service:
         if self._last_result is not None and self._last_result.target is not None:
             cx, cy = self._last_result.target.center
             target = "%.0f,%.0f" % (cx, cy)
+            # the targets reported beside the one sent (detector.targets.max > 1): id@x,y each
+            others = [t for t in self._last_result.targets if not t.primary]
+            if others:
+                target += " others=" + ";".join("%d@%.0f,%.0f" % ((t.id,) + t.target.center) for t in others)
         link = "off"
         if self.link is not None:
             st = self.link.status

@@ -21,7 +21,7 @@ from typing import Dict, Optional
 
 from payload.detect.pipeline import GladResult
 from payload.geometry import BearingModel, GeoModel, TargetGeo
-from payload.records import decision_row, detection_rows
+from payload.records import decision_row, result_rows
 from payload.types import Bearing, Frame
 
 #: What the live video shows while detection is disabled by command (no target state then).
@@ -77,7 +77,8 @@ class FrameStep:
             self._designation(frame)
         result = self.detector.process(frame)
         if self.camera is not None and self.camera.confirming:
-            if self.camera.after_frame(result.target is not None and result.target.measured) is False:
+            # confirmed only by the operator's own target, not by another one reported beside it
+            if self.camera.after_frame(result.designated_measured) is False:
                 self.detector.release()
         timings = dict(result.timings_ms)
         t0 = time.perf_counter()
@@ -96,7 +97,7 @@ class FrameStep:
             sent = self.publisher.publish(result.target, bearing, frame.size_wh, geo)
             timings["mavlink"] = (time.perf_counter() - t1) * 1000.0
         if self.detections_csv is not None:
-            self.detections_csv.write_rows(detection_rows(frame.index, result.detections))
+            self.detections_csv.write_rows(result_rows(frame.index, result))
         if self.decisions_csv is not None:
             self.decisions_csv.write_rows([decision_row(frame, result, bearing, sent)])
         if self.video is not None:

@@ -33,14 +33,16 @@ def running_values(svc):
     g = svc.glad
     add("detector.global.motion", g.gmd.cfg)
     add("detector.local.motion", g.lmd.cfg)
-    add("detector.search_region", g.region.cfg)
-    add("detector.switcher", g.switcher.cfg)
+    # the targets followed now, and one started now (what a target found after the reload runs with)
+    for track in g.tracks + [g._new_track()]:
+        add("detector.search_region", track.region.cfg)
+        add("detector.switcher", track.switcher.cfg)
+        seen.setdefault("detector.search_region.measurement_noise", []).append(float(track.region._kf.R[0, 0]) ** 0.5)
     add("detector.global.scan", g.cfg.global_.scan)  # read by the pipeline from its own config
     add("detector.global.appearance", g.models.global_appearance and g.models.global_appearance.cfg)
     add("detector.local.appearance", g.models.local_appearance and g.models.local_appearance.cfg)
     add("detector.classifier", g.models.classifier and g.models.classifier.cfg)
     add("detector", g.cfg)  # the switches the pipeline reads (enabled, modules, ...)
-    seen.setdefault("detector.search_region.measurement_noise", []).append(float(g.region._kf.R[0, 0]) ** 0.5)
     add("camera", svc.bearings.cfg)
     add("target", svc.geo.cfg)
     if svc.camera is not None:

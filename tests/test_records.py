@@ -29,8 +29,8 @@ def test_round_trip(tmp_path):
             writer.write(index, dets)
     assert writer.rows == 4
     lines = path.read_text().splitlines()
-    assert lines[0] == "frame,x,y,w,h,score,module"
-    assert lines[1] == "0,10.50,20.25,30.00,10.00,0.9000,GAD"
+    assert lines[0] == "frame,x,y,w,h,score,module,target_id,primary"
+    assert lines[1] == "0,10.50,20.25,30.00,10.00,0.9000,GAD,,1"  # no target id: a detector following none
     back = read_detections_csv(str(path))
     assert sorted(back) == [0, 7, 8]  # a frame without detections has no row
     for index in back:

@@ -109,6 +109,7 @@ def _changed(key, value):
         "camera.distortion": [0.01, 0.0, 0.0, 0.0, 0.0],
         "detector.classifier.modules": ["GAD", "GMD", "LAD", "LMD"],
         "detector.switcher.pick": "distance",
+        "detector.targets.primary": "largest",
         "mavlink.outputs.debug_vect_frame": "level",
         "mavlink.command_sysids": [42],
         "mavlink.outputs.follow_target_sysid": 2,

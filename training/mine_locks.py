@@ -69,8 +69,10 @@ def main():
     args = ap.parse_args()
 
     cfg = load_config(None)
+    # one target at a time: the patches are the lock's, as the classifier sees it in the single-target GLAD
     detector = cfg.detector.model_copy(update={
-        "classifier": cfg.detector.classifier.model_copy(update={"confirm_hits": 0})})
+        "classifier": cfg.detector.classifier.model_copy(update={"confirm_hits": 0}),
+        "targets": cfg.detector.targets.model_copy(update={"max": 1})})
     glad = Glad(detector)
     collector = Collector(args.every)
     all_splits = splits()

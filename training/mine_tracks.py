@@ -57,15 +57,17 @@ def run(glad, frames, fps=30.0):
         n_gt += int(drones is not None and len(drones) > 0)
         t_ns = int(i * 1e9 / fps)
         glad.process(Frame(image=image, index=i, t_capture_ns=t_ns, t_wall_ns=t_ns))
-        if glad.last_lock_row is None:
+        # one target at a time (detector.targets.max 1): its track, while it lasts
+        track = glad.tracks[0] if glad.tracks else None
+        if track is None or track.last_row is None:
             continue
-        if len(glad.verifier.rows) == 1:
+        if len(track.verifier.rows) == 1:
             lock_id += 1
-        rows.append(glad.last_lock_row)
+        rows.append(track.last_row)
         index.append(i)
         lock.append(lock_id)
-        confirmed.append(glad.lock.confirmed)
-        b = glad.last_lock_box
+        confirmed.append(track.lock.confirmed)
+        b = track.last_box
         box.append(np.full(4, np.nan, np.float32) if b is None else b)
         gt.append(nearest(drones, b))
     return dict(rows=np.asarray(rows, np.float32).reshape(-1, N_FEATURES), frame=np.asarray(index, np.int32),
@@ -129,9 +131,11 @@ def main():
 
     cv2.setNumThreads(1)  # one core per shard: shards side by side must not fight over threads
     cfg = load_config(args.config)
-    # the verifier off: every lock is followed and reported as today, its rows recorded all the same
+    # the verifier off: every lock is followed and reported as today, its rows recorded all the same;
+    # one target at a time: a lock's rows are one track's
     glad = Glad(cfg.detector.model_copy(update={
-        "threads": 1, "verifier": cfg.detector.verifier.model_copy(update={"enabled": False})}))
+        "threads": 1, "verifier": cfg.detector.verifier.model_copy(update={"enabled": False}),
+        "targets": cfg.detector.targets.model_copy(update={"max": 1})}))
     todo = jobs(args)
     for n, (name, frames) in enumerate(todo):
         path = os.path.join(args.out, name + ".npz")

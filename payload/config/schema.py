@@ -253,6 +253,21 @@ class SwitcherConfig(Section):
     max_jump_px: float = Field(50.0, ge=0, le=10000, description="Reject local hits farther than this from the prediction; 0 = off.")
 
 
+class TargetsConfig(Section):
+    """More than one drone in view (issue 16): the targets followed at once and which one the
+    autopilot gets (payload/detect/tracks.py)."""
+
+    max: int = Field(3, ge=1, le=16, description="Targets followed at once, each in its own search region; 1 = one target, as the paper.")
+    primary: Literal["centre", "largest", "operator"] = Field(
+        "centre", description="The target sent on the MAVLink messages: nearest the image centre, the largest box, "
+                              "or the one the operator designated (else nearest the centre).")
+    # Every frame the global stage runs it costs as much as a frame spent searching; a drone coming
+    # into view waits at most this many frames for it.
+    search_every: int = Field(
+        5, ge=1, le=10000,
+        description="While a target is reported (and max > 1), the global stage looks for more every N frames; it runs every frame while none is.")
+
+
 class DetectorConfig(Section):
     backend: Literal["cpu", "cuda", "tensorrt"] = "cpu"
     threads: int = Field(0, ge=0, le=256, description="ONNX Runtime intra-op threads of every model; 0 = one fewer than the CPU cores (at least 1).")
@@ -271,6 +286,7 @@ class DetectorConfig(Section):
     verifier: VerifierConfig = VerifierConfig()
     search_region: SearchRegionConfig = SearchRegionConfig()
     switcher: SwitcherConfig = SwitcherConfig()
+    targets: TargetsConfig = TargetsConfig()
 
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
 
@@ -465,6 +481,13 @@ class Config(Section):
         if self.mavlink.outputs.follow_target and self.target.span_m is None:
             raise ValueError("mavlink.outputs.follow_target needs target.span_m (the drones' span in metres, "
                              "calibrated as docs/mavlink.md says): without a range there is nothing to follow")
+        return self
+
+    @model_validator(mode="after")
+    def _operator_needs_link(self):
+        if self.detector.targets.primary == "operator" and not self.mavlink.enabled:
+            raise ValueError("detector.targets.primary 'operator' needs mavlink.enabled: the operator's choice "
+                             "arrives as a MAVLink camera track command (or choose centre or largest)")
         return self
 
     @model_validator(mode="after")

@@ -1,50 +1,60 @@
 """GLAD: the global-local detector around the four modules (paper Fig. 2).
 
-Per frame one detector runs, chosen by the switcher:
+Per frame, chosen by each target's switcher:
 - global: appearance (GAD) on the down-scaled full frame; only if it finds nothing, motion
   (GMD) on the full frame, its candidates checked by the 32x32 classifier; if that finds
   nothing either on a frame GAD down-scales strongly (1080p), GAD's look at native
   resolution: the local detector on a few tiles of the frame in turn (payload.detect.scan);
-- local: appearance (LAD) inside the search region at native resolution; only if it finds
-  nothing, motion (LMD) inside the region, checked by the classifier.
+- local: appearance (LAD) inside the target's search region at native resolution; only if it
+  finds nothing, motion (LMD) inside the region, checked by the classifier.
 A hit moves/keeps the switcher on local and updates the search region; a local miss grows
 the region around its prediction until the switcher gives up. Local hits farther than
 max_jump_px from the prediction are ignored, unless one would have started a target globally
 (score >= T0, confirmed by the classifier) and beats the hits near the prediction: then the
 target starts again there.
+
+More than one drone in view (detector.targets, payload.detect.tracks): GLAD follows up to
+``max`` targets, each a ``Track`` with its own region, switcher, lock check and verifier, each
+searched by the local stage in its own region. The global stage runs on every frame no target is
+followed locally; with ``max`` > 1 and room for another target also while targets are followed:
+on every frame while none is reported, else every ``search_every`` frames. There (and beyond a
+track's jump gate in the local stage) a strong (score >= T0), confirmed hit that belongs to no
+track starts a new one; while there is no room a local one retargets its track as above. Tracks
+that come to overlap are merged (the older id stays). Of the reported targets the ``primary``
+rule picks the one sent to the autopilot. With ``max`` 1 this is the single-target GLAD exactly.
 """
 
 import logging
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
 import cv2
 import numpy as np
 
 from payload.config import DetectorConfig, section_changes
-from payload.detect.classifier import LockCheck
-from payload.detect.ego_motion import EgoMotion, GreyLevels
+from payload.detect.ego_motion import CameraMotion, EgoMotion, GreyLevels
 from payload.detect.factory import DetectorModels, build_detectors
 from payload.detect.motion import MotionDetector
-from payload.detect.region import SearchRegion
 from payload.detect.scan import NativeScan
-from payload.detect.switcher import GLOBAL, LOCAL, Switcher
-from payload.detect.verify import LockVerifier
+from payload.detect.switcher import GLOBAL, LOCAL
+from payload.detect.tracks import Track, TrackedTarget, is_far, merge_overlapping, overlap, primary_of
 from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
 
 log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class GladResult:
-    """What GLAD decided for one frame."""
+    """What GLAD decided for one frame. ``detections``, ``target``, ``region_xyxy``, ``lock_p`` and
+    ``following`` are the primary target's (the one sent to the autopilot); ``targets`` lists every
+    reported one."""
 
     frame_index: int
     t_capture_ns: int
-    mode: str  # the detector that ran: 'global' or 'local'
-    detections: Detections  # the chosen target as 0 or 1 rows (what is reported and scored)
+    mode: str  # the detector that ran: 'global', or 'local' when any target was searched locally
+    detections: Detections  # the primary target as 0 or 1 rows (what is reported and scored)
     candidates: Detections  # every box the modules that ran produced (debugging)
-    target: Optional[Target]  # measured or predicted (coasting) target; None when searching globally
+    target: Optional[Target]  # measured or predicted (coasting) primary target; None when none is reported
     region_xyxy: Optional[np.ndarray]  # the search region searched this frame (local mode)
     timings_ms: Dict[str, float] = field(default_factory=dict)  # per module, for the benchmark
     # a lock is followed but not reported: LockCheck or the verifier is not yet convinced of it
@@ -53,6 +63,7 @@ class GladResult:
     # per module, the work it left out this frame to stay within its time budget (e.g. GMD:
     # candidates over motion.max_candidates not judged); empty on a frame done in full
     degraded: Dict[str, int] = field(default_factory=dict)
+    targets: Tuple[TrackedTarget, ...] = ()  # every reported target, the primary flagged
 
     @property
     def state(self) -> str:
@@ -61,6 +72,14 @@ class GladResult:
         if self.target is None:
             return "following" if self.following else "searching"
         return "detected" if self.target.measured else "coasting"
+
+    @property
+    def designated_measured(self) -> bool:
+        """Whether the operator's own target was reported measured this frame (what confirms a
+        designation); for a detector that lists no targets, whether its one target was."""
+        if not self.targets:
+            return self.target is not None and self.target.measured
+        return any(t.designated and t.target.measured for t in self.targets)
 
 
 class Glad:
@@ -75,22 +94,21 @@ class Glad:
         self.ego_motion = EgoMotion(cfg.global_.motion)
         self.gmd = MotionDetector(cfg.global_.motion, GMD)
         self.lmd = MotionDetector(cfg.local.motion, LMD)
-        self.region = SearchRegion(cfg.search_region)
-        self.switcher = Switcher(cfg.switcher, local_available=self._local_available(cfg))
-        self.lock = LockCheck(*self._lock_settings(cfg))
-        v = cfg.verifier
-        self.verifier = LockVerifier(models.verifier, v.min_frames, v.threshold, v.release_threshold, v.enabled)
         self.scan = NativeScan()
-        # what this frame measured of the lock, for the verifier's row (reset each frame)
-        self._observed: Optional[Detections] = None
-        self._drone_p: Optional[float] = None
+        self.tracks: List[Track] = []  # the targets followed, oldest (lowest id) first
+        self._next_id = 1
+        self._since_search = 0  # frames since the global stage last ran
+        # this frame's camera motion for the local stage (one estimate for every track) and its matrix
+        self._camera: Optional[CameraMotion] = None
         self._homography: Optional[np.ndarray] = None
         self._degraded: Dict[str, int] = {}
-        self.last_lock_row: Optional[np.ndarray] = None  # the verifier's row of this frame's lock
-        self.last_lock_box: Optional[np.ndarray] = None  # the box that frame reports if verified
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
-        self.designated = False  # the lock is an operator's (designate): no retarget may take it
+
+    @property
+    def designated(self) -> bool:
+        """Whether a followed target is an operator's (designate)."""
+        return any(t.designated for t in self.tracks)
 
     @staticmethod
     def _local_available(cfg: DetectorConfig) -> bool:
@@ -104,6 +122,12 @@ class Glad:
         if not (c.enabled and self.models.classifier is not None and self._local_available(cfg)):
             return 0, c.lock_threshold, 0, c.confirm_threshold
         return c.lock_hits, c.lock_threshold, c.confirm_hits, c.confirm_threshold
+
+    def _new_track(self) -> Track:
+        track = Track(self._next_id, self.cfg, self._lock_settings(self.cfg), self.models.verifier,
+                      self._local_available(self.cfg))
+        self._next_id += 1
+        return track
 
     def update_config(self, cfg: DetectorConfig) -> List[str]:
         """Hot reload: thresholds and switches; models stay as loaded. Returns the keys applied:
@@ -123,12 +147,12 @@ class Glad:
         self.ego_motion.update_config(cfg.global_.motion)
         self.gmd.update_config(cfg.global_.motion)
         self.lmd.update_config(cfg.local.motion)
-        self.region.update_config(cfg.search_region)
-        self.switcher.update_config(cfg.switcher)
-        self.switcher.local_available = self._local_available(cfg)
-        self.lock.update_config(*self._lock_settings(cfg))
-        v = cfg.verifier
-        self.verifier.update_config(v.min_frames, v.threshold, v.release_threshold, v.enabled)
+        for track in self.tracks:
+            track.update_config(cfg, self._lock_settings(cfg), self._local_available(cfg))
+        if len(self.tracks) > cfg.targets.max:
+            # fewer targets allowed: keep the reported ones, the operator's first, then the oldest
+            keep = sorted(self.tracks, key=lambda t: (not t.designated, not t.reported, t.id))[:cfg.targets.max]
+            self.tracks = sorted(keep, key=lambda t: t.id)
         if self.models.global_appearance is not None:
             self.models.global_appearance.update_config(cfg.global_.appearance)
         if self.models.local_appearance is not None:
@@ -140,31 +164,35 @@ class Glad:
     # --- operator designation (MAVLink camera track point / rectangle) --------------------------
 
     def designate(self, center_xy: Tuple[float, float], size_wh: Tuple[float, float]) -> None:
-        """Local mode with the search region on an operator's point: the next frames' local
+        """Local mode with a search region on an operator's point: the next frames' local
         detectors look there (the lock check judges what they find afresh) and, while this lock
         holds, no stronger hit elsewhere takes it (no retarget). Lost after max_local_misses as
-        any lock; a target the global search then finds is an automatic one again."""
-        self.region.start((float(center_xy[0]), float(center_xy[1])), (float(size_wh[0]), float(size_wh[1])), 0.0)
-        self.switcher.reset()
-        self.switcher.after(hit=True)  # local from the next frame
-        self.lock.reset()
-        self.verifier.reset()
-        self.designated = True
+        any lock; a target the global search then finds is an automatic one again. A followed
+        target under the point becomes the operator's (its id kept); else a new one starts, in
+        place of the youngest unreported (else youngest) target when there is no room."""
+        cx, cy, w, h = float(center_xy[0]), float(center_xy[1]), float(size_wh[0]), float(size_wh[1])
+        box = np.array([cx - w / 2.0, cy - h / 2.0, cx + w / 2.0, cy + h / 2.0], np.float32)
+        for track in self.tracks:
+            track.designated = False
+        track = next((t for t in self.tracks if overlap(t.box(), box)), None)
+        if track is None:
+            if len(self.tracks) >= self.cfg.targets.max:
+                drop = max(self.tracks, key=lambda t: (not t.reported, t.id))
+                self.tracks.remove(drop)
+            track = self._new_track()
+            self.tracks.append(track)
+        track.designate((cx, cy), (w, h))
 
     def release(self) -> None:
-        """Back to automatic global search (operator's stop, or a designation not confirmed)."""
-        self.region.reset()
-        self.switcher.reset()
-        self.lock.reset()
-        self.verifier.reset()
-        self.designated = False
+        """The operator's target ends (operator's stop, or a designation not confirmed); without
+        one, every target does: back to automatic global search."""
+        chosen = [t for t in self.tracks if t.designated]
+        self.tracks = [t for t in self.tracks if not t.designated] if chosen else []
 
     def reset(self) -> None:
-        self.designated = False
-        self.switcher.reset()
-        self.region.reset()
-        self.lock.reset()
-        self.verifier.reset()
+        self.tracks = []
+        self._next_id = 1
+        self._since_search = 0
         self.scan.reset()
         self._prev = self._prev_t_ns = None
 
@@ -175,87 +203,169 @@ class Glad:
         t0 = time.perf_counter()
         grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
         timings["grey"] = _ms(t0)
-        self._observed, self._drone_p, self._homography = None, None, None
+        self._camera, self._homography = None, None
         self._degraded = {}
-        mode = self.switcher.mode if self.region.active else GLOBAL
-        if mode == LOCAL:
-            result = self._local(frame, grey, timings)
+        candidates: List[Detections] = []
+        # a target without a local stage to follow it (global-only) lives one frame: every global
+        # hit starts a new lock
+        self.tracks = [t for t in self.tracks if t.local]
+        searched = list(self.tracks)  # the tracks the local stage searches this frame, oldest first
+        search = self._search_due()
+        for track in searched:
+            track.begin_frame()
+        found_far: List[Detections] = []  # strong, confirmed local hits belonging to no track
+        for track in searched:
+            self._local(track, frame, grey, timings, candidates, found_far)
+        self.tracks = [t for t in searched if t.target is not None]  # the others were lost or judged false
+        started = self._start_far(frame, found_far, timings)
+        if search:
+            started += self._global(frame, grey, timings, candidates)
+            self._since_search = 0
         else:
-            result = self._global(frame, grey, timings)
+            self._since_search += 1
         self._prev = grey
         self._prev_t_ns = frame.t_capture_ns
-        self._verify(frame, grey, result, timings)
-        if result.target is not None:
-            result = replace(result, lock_p=self.verifier.probability)
-        if self._degraded:
-            result = replace(result, degraded=self._degraded)
-        verified = self.verifier.verified or self.designated  # the operator picked this one: it needs no drone verdict
-        if not (self.lock.confirmed and verified) and (len(result.detections) or result.target is not None):
-            # followed, not reported: the classifier has not confirmed this lock (LockCheck), or
-            # its recent frames have not convinced the verifier (LockVerifier)
-            result = replace(result, detections=Detections.empty(), target=None, following=True)
-        return result
+        self.tracks = merge_overlapping(sorted(self.tracks, key=lambda t: t.id))
+        for track in self.tracks:
+            self._verify(track, grey, frame, timings)
+        reported = [t for t in self.tracks if t.verified]
+        for track in self.tracks:
+            track.reported = track in reported
+        primary = primary_of(reported, self.cfg.targets.primary, frame.size_wh)
+        stepped = searched + started
+        focus = primary if primary is not None else (stepped[0] if stepped else None)
+        lock_p = float("nan")
+        judged = primary if primary is not None else (self.tracks[0] if self.tracks else None)
+        if judged is not None:
+            lock_p = judged.verifier.probability
+        targets = tuple(TrackedTarget(t.id, t.target, t.detections, t is primary, t.designated, t.verifier.probability)
+                        for t in reported)
+        if len(reported) > 1:
+            log.debug("frame=%d targets=%s primary=%d", frame.index, [t.id for t in reported], primary.id)
+        return GladResult(
+            frame.index, frame.t_capture_ns, LOCAL if searched else GLOBAL,
+            primary.detections if primary is not None else Detections.empty(), Detections.concat(candidates),
+            primary.target if primary is not None else None, focus.region_xyxy if focus is not None else None,
+            timings, following=primary is None and bool(self.tracks), lock_p=lock_p, degraded=self._degraded,
+            targets=targets)
 
-    def _verify(self, frame: Frame, grey: GreyLevels, result: GladResult, timings: Dict[str, float]) -> None:
-        """Add this frame of the lock to the verifier (a frame without a lock ends it)."""
-        self.last_lock_row = self.last_lock_box = None
-        target = result.target
-        if target is None:
-            self.verifier.reset()
-            return
+    def _search_due(self) -> bool:
+        """Whether the global stage runs this frame: always while no target is followed locally;
+        with room for another target, every frame while none is reported, else every search_every."""
+        if not self.tracks:
+            return True
+        t = self.cfg.targets
+        if len(self.tracks) >= t.max:
+            return False
+        if not any(track.reported for track in self.tracks):
+            return True
+        return self._since_search + 1 >= t.search_every
+
+    def _verify(self, track: Track, grey: GreyLevels, frame: Frame, timings: Dict[str, float]) -> None:
+        """Add this frame of the track's lock to its verifier."""
+        target = track.target
         t = time.perf_counter()
-        observed = self._observed if target.measured and self._observed is not None and len(self._observed) else None
-        if observed is not None and self._drone_p is None and self.verifier.judging and self.models.classifier is not None:
+        observed = track.observed if target.measured and track.observed is not None and len(track.observed) else None
+        if observed is not None and track.drone_p is None and track.verifier.judging and self.models.classifier is not None:
             # the lock check did not ask the classifier this frame (it is off): the verifier's row needs it
-            self._drone_p = float(self.models.classifier.probabilities(frame.image, observed)[0])
-        row = self.verifier.features.row(
+            track.drone_p = float(self.models.classifier.probabilities(frame.image, observed)[0])
+        row = track.verifier.features.row(
             grey.full, target.xyxy, observed.xyxy[0] if observed is not None else None,
             float(observed.score[0]) if observed is not None else 0.0,
-            str(observed.module[0]) if observed is not None else "", self._drone_p, self._homography)
-        self.verifier.add(row)
-        self.last_lock_row = row
-        self.last_lock_box = result.detections.xyxy[0].copy() if len(result.detections) else None
-        timings["verifier"] = _ms(t)
+            str(observed.module[0]) if observed is not None else "", track.drone_p, self._homography)
+        track.verifier.add(row)
+        track.last_row = row
+        track.last_box = track.detections.xyxy[0].copy() if len(track.detections) else None
+        _add(timings, "verifier", _ms(t))
 
-    def _global(self, frame: Frame, grey: GreyLevels, timings: Dict[str, float]) -> GladResult:
+    def _global(self, frame: Frame, grey: GreyLevels, timings: Dict[str, float],
+                candidates: List[Detections]) -> List[Track]:
+        """The global stage; returns the tracks it started. With no target followed, its best hit
+        starts one (as the single-target GLAD); beside followed ones, only hits that belong to none
+        of them count (``_new_targets``)."""
+        existing = list(self.tracks)
+
+        def keep(found: Detections) -> Detections:
+            return self._new_targets(found, existing) if existing else found
+
         found = Detections.empty()
-        candidates = []
         gad = self.models.global_appearance
         if gad is not None and self.cfg.global_.appearance.enabled:
-            found = self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates)
+            found = keep(self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates))
         prev = self._prev
         if not len(found) and self.cfg.global_.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
             camera = self.ego_motion.estimate(prev, grey, fine=True)
-            found = self._motion(self.gmd, frame.image, prev.full, grey.full, camera, (0, 0), t, timings, candidates)
+            found = keep(self._motion(self.gmd, frame.image, prev.full, grey.full, camera, (0, 0), t, timings, candidates))
         if not len(found) and gad is not None and self.cfg.global_.appearance.enabled:
             scanned = self._scan(frame, timings)
             candidates.append(scanned)
             # Four native-resolution tiles a frame meet many more birds than GAD's down-scaled
             # look: where GAD hits are checked, a scan hit must convince the classifier as much
             # as a lock must to be reported (a synthetic gull at 0.51 took the demo's lock).
-            found = self._classify(frame.image, scanned, timings, threshold=max(
-                self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold))
-        best = found.sorted_by_score()[:1] if len(found) else found
+            found = keep(self._classify(frame.image, scanned, timings, threshold=max(
+                self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold)))
         t = time.perf_counter()
-        target = None
-        if len(best):
-            target = self._acquire(frame, best, timings)
-        self.switcher.after(hit=bool(len(best)))
-        timings["switcher"] = _ms(t)
-        return GladResult(frame.index, frame.t_capture_ns, GLOBAL, best, Detections.concat(candidates), target, None, timings)
+        started = self._start(frame, found.sorted_by_score(), timings)
+        _add(timings, "switcher", _ms(t))
+        return started
 
-    def _local(self, frame: Frame, grey: GreyLevels, timings: Dict[str, float]) -> GladResult:
+    def _new_targets(self, found: Detections, tracks: List[Track]) -> Detections:
+        """The hits that could start another target beside ``tracks``: strong (score >= T0, the
+        classifier having confirmed those it checks) and belonging to none of them."""
+        strong = found[found.score >= self.cfg.global_.appearance.confidence]
+        gate = self.cfg.switcher.max_jump_px
+        return strong[np.array([is_far(box, tracks, gate) for box in strong.xyxy], bool)] if len(strong) else strong
+
+    def _start(self, frame: Frame, hits: Detections, timings: Dict[str, float]) -> List[Track]:
+        """New tracks on ``hits`` (best first) while there is room: the first one whatever it is
+        when no target is followed, the others only if they belong to no track."""
+        started = []
+        for i in range(len(hits)):
+            if len(self.tracks) >= self.cfg.targets.max:
+                break
+            hit = hits[i:i + 1]
+            if self.tracks and not len(self._new_targets(hit, self.tracks)):
+                continue
+            track = self._new_track()
+            track.target = self._acquire(track, frame, hit, timings)
+            track.detections = hit
+            track.switcher.after(hit=True)
+            self.tracks.append(track)
+            started.append(track)
+        return started
+
+    def _start_far(self, frame: Frame, found_far: List[Detections], timings: Dict[str, float]) -> List[Track]:
+        """New tracks on the local stage's strong, confirmed hits beyond every track's gate."""
+        if not found_far:
+            return []
         t = time.perf_counter()
-        camera = self.ego_motion.estimate(self._prev, grey, fine=False)
-        self._homography = camera.matrix if self._prev is not None else None
+        started = self._start(frame, Detections.concat(found_far).sorted_by_score(), timings)
+        _add(timings, "switcher", _ms(t))
+        return started
+
+    def _local_camera(self, grey: GreyLevels) -> CameraMotion:
+        """This frame's camera motion for the local stage: estimated once, shared by every track."""
+        if self._camera is None:
+            self._camera = self.ego_motion.estimate(self._prev, grey, fine=False)
+            self._homography = self._camera.matrix if self._prev is not None else None
+        return self._camera
+
+    def _local(self, track: Track, frame: Frame, grey: GreyLevels, timings: Dict[str, float],
+               candidates: List[Detections], found_far: List[Detections]) -> None:
+        """The local stage in ``track``'s search region: sets the track's target for this frame
+        (None: lost, or judged false). A strong confirmed hit beyond the gate that belongs to no
+        other track goes to ``found_far`` while there is room for another target, else it may
+        retarget this track."""
+        t = time.perf_counter()
+        camera = self._local_camera(grey)
         dt_s = (frame.t_capture_ns - self._prev_t_ns) / 1e9 if self._prev_t_ns is not None else 1.0 / 30
-        predicted = self.region.predict(camera, dt_s)
-        region = self.region.region_xyxy(frame.size_wh)
-        timings["region"] = _ms(t)
+        predicted = track.region.predict(camera, dt_s)
+        region = track.region.region_xyxy(frame.size_wh)
+        track.region_xyxy = region
+        _add(timings, "region", _ms(t))
         x1, y1, x2, y2 = (int(v) for v in region)
         found = Detections.empty()
-        candidates = []
         lad = self.models.local_appearance
         if lad is not None and self.cfg.local.appearance.enabled:
             found = self._appearance(lad, frame.image, frame.image[y1:y2, x1:x2], (x1, y1), timings, candidates)
@@ -267,38 +377,48 @@ class Glad:
         t = time.perf_counter()
         near, near_distance, far = self._gate(found, predicted)
         best = self._pick(near, near_distance)
-        retarget = self._retarget(frame.image, far, best, timings)
+        others = [o for o in self.tracks if o is not track]
+        if others and len(far):
+            # a hit another target's own: that track follows it
+            far = far[np.array([is_far(box, others, self.cfg.switcher.max_jump_px) for box in far.xyxy], bool)]
+        retarget = far[:0]
+        if len(self.tracks) + len(found_far) < self.cfg.targets.max:
+            # room for another target: it starts beside this one, which keeps its own lock
+            new = self._strong_far(frame.image, far, 0.0, timings)
+            if len(new):
+                found_far.append(new)
+        else:
+            retarget = self._retarget(track, frame.image, far, best, timings)
         if len(retarget):
             # a confident, confirmed hit away from the prediction, stronger than anything near it:
-            # the lock was on clutter or had lost the target; start again there
-            target = self._acquire(frame, retarget, timings)
-            self.switcher.after(hit=True)
-            timings["switcher"] = _ms(t)
-            return GladResult(frame.index, frame.t_capture_ns, LOCAL, retarget, Detections.concat(candidates),
-                              target, region, timings)
-        if len(best) and not self._lock_holds(frame.image, best, timings):
-            # the classifier does not believe in what is being followed: search globally again
-            self.region.reset()
-            self.switcher.reset()
-            timings["switcher"] = _ms(t)
-            return GladResult(frame.index, frame.t_capture_ns, LOCAL, Detections.empty(), Detections.concat(candidates),
-                              None, region, timings)
+            # the lock was on clutter or had lost the target; start again there, a new target
+            track.id, self._next_id = self._next_id, self._next_id + 1
+            track.target = self._acquire(track, frame, retarget, timings)
+            track.detections = retarget
+            track.switcher.after(hit=True)
+            _add(timings, "switcher", _ms(t))
+            return
+        if len(best) and not self._lock_holds(track, frame.image, best, timings):
+            # the classifier does not believe in what is being followed: this target ends
+            track.region.reset()
+            track.switcher.reset()
+            _add(timings, "switcher", _ms(t))
+            return
         if len(best):
-            self._observed = best
-            self.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
-            best = best.resized(self.region.size_wh).rescored(self.region.score)
-            target = self._target(frame, best, region=region)
+            track.observed = best
+            track.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
+            best = best.resized(track.region.size_wh).rescored(track.region.score)
+            track.target = self._target(frame, best, region=region)
         else:
-            self.region.miss()
-            target = Target(
-                frame.index, frame.t_capture_ns, self.region.predicted_box(), 0.0, "", measured=False, region_xyxy=region
-            )
-        mode_next = self.switcher.after(hit=bool(len(best)))
+            track.region.miss()
+            track.target = Target(frame.index, frame.t_capture_ns, track.region.predicted_box(), 0.0, "",
+                                  measured=False, region_xyxy=region)
+        track.detections = best
+        mode_next = track.switcher.after(hit=bool(len(best)))
         if mode_next == GLOBAL and not len(best):
-            self.region.reset()
-            target = None
-        timings["switcher"] = _ms(t)
-        return GladResult(frame.index, frame.t_capture_ns, LOCAL, best, Detections.concat(candidates), target, region, timings)
+            track.region.reset()
+            track.target = None
+        _add(timings, "switcher", _ms(t))
 
     # --- helpers ----------------------------------------------------------------------------
 
@@ -319,23 +439,24 @@ class Glad:
         timings["scan"] = _ms(t)
         return Detections(found.xyxy, found.score, np.full(len(found), GAD, "<U3"))
 
-    def _acquire(self, frame: Frame, best: Detections, timings: Dict[str, float]) -> Target:
-        """A new target: the search region starts around it and its lock is judged afresh."""
-        self.designated = False
-        self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
-        self.lock.reset()
-        self.verifier.reset()
-        self._observed = best
-        self._lock_holds(frame.image, best, timings)
+    def _acquire(self, track: Track, frame: Frame, best: Detections, timings: Dict[str, float]) -> Target:
+        """A new target for ``track``: its search region starts around it, its lock judged afresh."""
+        track.start(best)
+        self._lock_holds(track, frame.image, best, timings)
         return self._target(frame, best, region=None)
 
-    def _retarget(self, image: np.ndarray, far: Detections, near_best: Detections,
+    def _retarget(self, track: Track, image: np.ndarray, far: Detections, near_best: Detections,
                   timings: Dict[str, float]) -> Detections:
         """The strongest local appearance hit beyond the gate (``far``) if the global detector would
         have taken it (score > T0), the classifier confirms it, and it beats the chosen near hit."""
-        if self.designated:
+        if track.designated:
             return far[:0]  # the operator chose the target: it is not traded for a stronger one
-        floor = max(self.cfg.global_.appearance.confidence, float(near_best.score[0]) if len(near_best) else 0.0)
+        return self._strong_far(image, far, float(near_best.score[0]) if len(near_best) else 0.0, timings)
+
+    def _strong_far(self, image: np.ndarray, far: Detections, floor: float, timings: Dict[str, float]) -> Detections:
+        """The strongest local appearance hit of ``far`` scoring above T0 and ``floor``, if the
+        classifier confirms it (0 or 1 row)."""
+        floor = max(self.cfg.global_.appearance.confidence, floor)
         far = far[(far.module == LAD) & (far.score > floor)]
         if not len(far):
             return far
@@ -347,7 +468,7 @@ class Glad:
         those the classifier confirms are returned."""
         t = time.perf_counter()
         found = detector.detect(part, offset_xy=offset_xy)
-        timings[detector.module] = _ms(t)
+        _add(timings, detector.module, _ms(t))
         candidates.append(found)
         return self._classify(image, found, timings)
 
@@ -357,9 +478,9 @@ class Glad:
         timed from ``t_start``: its hits join ``candidates`` (candidates it left out to keep its time
         budget are counted in the frame's ``degraded``), those the classifier confirms are returned."""
         motion = detector.detect(prev, cur, camera, offset_xy=offset_xy)
-        timings[detector.module] = _ms(t_start)
+        _add(timings, detector.module, _ms(t_start))
         if motion.left_out:
-            self._degraded[detector.module] = motion.left_out
+            self._degraded[detector.module] = self._degraded.get(detector.module, 0) + motion.left_out
         candidates.append(motion.detections)
         return self._classify(image, motion.detections, timings)
 
@@ -384,19 +505,19 @@ class Glad:
             return dets
         t = time.perf_counter()
         kept = classifier.filter(image, dets, rescore=rescore, threshold=threshold)
-        timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
+        _add(timings, "classifier", _ms(t))
         return kept
 
-    def _lock_holds(self, image: np.ndarray, best: Detections, timings: Dict[str, float]) -> bool:
-        """Feed the chosen hit's drone probability to the lock check (cfg.classifier.lock_hits,
+    def _lock_holds(self, track: Track, image: np.ndarray, best: Detections, timings: Dict[str, float]) -> bool:
+        """Feed the chosen hit's drone probability to the track's lock check (cfg.classifier.lock_hits,
         confirm_hits)."""
-        if not self.lock.active:
+        if not track.lock.active:
             return True
         t = time.perf_counter()
         probability = float(self.models.classifier.probabilities(image, best)[0])
-        self._drone_p = probability
-        timings["classifier"] = timings.get("classifier", 0.0) + _ms(t)
-        return self.lock.add(probability)
+        track.drone_p = probability
+        _add(timings, "classifier", _ms(t))
+        return track.lock.add(probability)
 
     def _gate(self, found: Detections, predicted_xy) -> Tuple[Detections, np.ndarray, Detections]:
         """Local hits split at max_jump_px from the prediction: (near, their distances, far).
@@ -418,6 +539,11 @@ class Glad:
         """The measured target: the chosen detection."""
         return Target(frame.index, frame.t_capture_ns, best.xyxy[0].copy(), float(best.score[0]),
                       str(best.module[0]), measured=True, region_xyxy=region)
+
+
+def _add(timings: Dict[str, float], key: str, ms: float) -> None:
+    """Add to a frame's time of ``key`` (a module may run once per target)."""
+    timings[key] = timings.get(key, 0.0) + ms
 
 
 def _ms(t_start: float) -> float:

@@ -57,6 +57,7 @@ class SceneFrame:
     camera_zoom: float = 1.0
     camera_position_m: Optional[Tuple[float, float, float]] = None
     target_direction: Optional[Tuple[float, float, float]] = None
+    second_xyxy: Optional[np.ndarray] = None  # Scene(second_drone=True): the second drone's box, as target_xyxy
 
 
 class _TargetPath:
@@ -113,6 +114,30 @@ class _TargetPath:
         return float(np.clip(math.exp(self.log_span) * zoom / zoom_mid, lo, hi))
 
 
+class _SecondPath:
+    """A second drone (``Scene(second_drone=True)``, for tests of more than one target): its own
+    airframe, size and attitude, flying at a wandering offset beside the first (a tenth to a third
+    of the field of view across, a little above or below it), so the camera that follows the
+    first keeps both in view most of the time."""
+
+    def __init__(self, rng: np.random.Generator, first: _TargetPath, limits: MotionLimits, fps: float,
+                 span_px: Tuple[float, float], in_sky: bool):
+        self.first = first
+        self.path = _TargetPath(rng, limits, fps, span_px, in_sky=in_sky)
+        self.dt_s = 1.0 / fps
+        self.side = 1.0 if rng.random() < 0.5 else -1.0
+        hfov = limits.hfov_rad
+        self.lo, self.hi = 0.1 * hfov, 0.33 * hfov
+        self.dyaw = Wander(rng, 0.2 * hfov, 0.06 * hfov, 3.0, rng.uniform(self.lo, self.hi))
+        self.dpitch = Wander(rng, 0.0, 0.05 * hfov, 3.0, rng.uniform(-0.08, 0.08) * hfov)
+
+    def step(self) -> None:
+        p = self.path
+        p.step()  # its own motion: attitude, heading and size
+        p.yaw = self.first.yaw + self.side * float(np.clip(self.dyaw.step(self.dt_s), self.lo, self.hi))
+        p.pitch = max(p.pitch_min_rad, self.first.pitch + self.dpitch.step(self.dt_s))
+
+
 class Scene:
     """A reproducible synthetic clip; iterate to render frames 0..frames-1 (frames=0: endless).
 
@@ -121,14 +146,16 @@ class Scene:
     ``hfov_deg`` (field of view at zoom 1). ``background``: a video whose frames replace the
     rendered backdrop (use clips without drones, e.g. Halmstad V_BIRD_*: nothing in them is
     labelled). ``render_target=False`` renders the same clip without the drone (labels still
-    describe where it would be).
+    describe where it would be). ``second_drone``: a second drone flies beside the first
+    (``SceneFrame.second_xyxy``; not in the labels, for tests of more than one target).
     """
 
     def __init__(self, seed: int = 1, width: int = 1920, height: int = 1080, fps: float = 30.0,
                  frames: int = 300, target_px: Tuple[float, float] = (4.0, 80.0),
                  background: Optional[str] = None, clutter: int = 4, birds: int = 2, cars: int = 3,
                  noise: float = 1.0, shake: float = 1.0, jump_rate_hz: float = 0.1, hfov_deg: float = 60.0,
-                 render_target: bool = True, drone_look: str = "any", sky: str = "any", target_in_sky: bool = False):
+                 render_target: bool = True, drone_look: str = "any", sky: str = "any", target_in_sky: bool = False,
+                 second_drone: bool = False):
         if not (0 < target_px[0] <= target_px[1]):
             raise ConfigError([f"synthetic.target_px={list(target_px)}: expected 0 < min <= max"])
         if drone_look not in ("any", "light"):
@@ -142,6 +169,7 @@ class Scene:
         self.noise, self.shake, self.jump_rate_hz = noise, shake, jump_rate_hz
         self.render_target = render_target
         self.drone_look, self.sky, self.target_in_sky = drone_look, sky, target_in_sky
+        self.second_drone = second_drone
         self.lens = Lens(width, height, math.radians(hfov_deg))
         if background:
             # A real frame tolerates less stretching: smaller turns, no zooming out.
@@ -152,9 +180,9 @@ class Scene:
             self.limits = MotionLimits(hfov_rad=math.radians(hfov_deg))
         # Child i of a SeedSequence does not depend on how many are spawned: appending a stream
         # leaves every earlier one (and so every default scene's pixels) unchanged.
-        streams = np.random.SeedSequence(seed).spawn(9)
-        self._seeds = dict(zip(["backdrop", "camera", "target", "clutter", "birds", "cars", "noise", "model", "glare"],
-                               streams))
+        streams = np.random.SeedSequence(seed).spawn(11)
+        self._seeds = dict(zip(["backdrop", "camera", "target", "clutter", "birds", "cars", "noise", "model", "glare",
+                                "second", "second_model"], streams))
         self._backdrop: Optional[Backdrop] = None
 
     def _rng(self, name: str) -> np.random.Generator:
@@ -189,6 +217,10 @@ class Scene:
         cam = CameraPath(self._rng("camera"), lim, self.fps, shake=self.shake, jump_rate_hz=self.jump_rate_hz)
         target = _TargetPath(self._rng("target"), lim, self.fps, self.target_px, in_sky=self.target_in_sky)
         model = DroneModel(self._rng("model"), look=self.drone_look)
+        second = second_model = None
+        if self.second_drone:
+            second = _SecondPath(self._rng("second"), target, lim, self.fps, self.target_px, self.target_in_sky)
+            second_model = DroneModel(self._rng("second_model"), look=self.drone_look)
         near = clutter_mod.Clutter(self._rng("clutter"), self.lens, self.n_clutter, buildings=not self.background)
         if draw:
             birds = Birds(self._rng("birds"), lim, self.n_birds, self.fps)
@@ -203,10 +235,12 @@ class Scene:
         zoom_mid = math.sqrt(lim.zoom_min * lim.zoom_max)
         haze_colour = (205.0, 200.0, 195.0)
         H_prev = None
-        dir_prev = None
+        dir_prev = second_prev = None
         index = 0
         while self.frames <= 0 or index < self.frames:
             target.step()
+            if second is not None:
+                second.step()
             pose = cam.step(target.yaw, target.pitch)
             image = step_h = None
             if draw:
@@ -219,27 +253,12 @@ class Scene:
                 cars.draw(image, H)
                 birds.draw(image, self.lens, pose)
 
-            dirs = [direction(target.yaw, target.pitch)] + ([] if dir_prev is None else [dir_prev])
-            uv, depth = self.lens.project_directions(pose, np.array(dirs))
-            xy = uv[0]
-            span = target.span_px(pose.zoom, zoom_mid)
-            # Blur by the target's own motion only: the backdrop is not blurred by camera motion,
-            # so blurring the target by it would make the target stand out unnaturally.
-            blur = np.zeros(2) if dir_prev is None else (xy - uv[1]) * EXPOSURE_FRACTION
-            dir_prev = dirs[0]
-            blur_len = float(np.hypot(*blur))
-            if blur_len > MAX_BLUR_PX:
-                blur *= MAX_BLUR_PX / blur_len
             shapes = near.shapes(pose, first=index == 0)
-            box, seen = None, 0.0
-            reach = span + MAX_BLUR_PX
-            if depth[0] > 0 and -reach < xy[0] < w + reach and -reach < xy[1] < h + reach:
-                tilt = (0.25 * target.vel[1] / 0.05, -0.25 * target.vel[0] / 0.05) if target.flying else (0.0, 0.0)
-                tilt = (float(np.clip(tilt[0], -0.35, 0.35)), float(np.clip(tilt[1], -0.35, 0.35)))
-                haze = 0.35 * (1.0 - (span - self.target_px[0]) / max(self.target_px[1] - self.target_px[0], 1e-6))
-                sprite = model.render(span, (float(xy[0]), float(xy[1])), target.heading, target.view_elev, tilt,
-                                      (float(blur[0]), float(blur[1])), haze=haze, haze_colour=haze_colour)
-                box, seen = self._composite(image, sprite, shapes)
+            box, seen, span, dir_prev = self._drone(image, target, model, pose, zoom_mid, dir_prev, shapes, haze_colour)
+            second_box = None
+            if second is not None:
+                second_box, _, _, second_prev = self._drone(image, second.path, second_model, pose, zoom_mid,
+                                                            second_prev, shapes, haze_colour)
             if draw:
                 clutter_mod.draw(image, shapes)
                 if sigma > 0:
@@ -250,9 +269,35 @@ class Scene:
                 image=image, index=index, target_xyxy=box, homography=step_h,
                 camera_rpy_rad=(pose.roll_rad, pose.pitch_rad, pose.yaw_rad), target_span_px=span, target_visible=seen,
                 camera_zoom=float(pose.zoom), camera_position_m=tuple(float(c) for c in pose.position_m),
-                target_direction=tuple(float(c) for c in dirs[0]),
+                target_direction=tuple(float(c) for c in dir_prev), second_xyxy=second_box,
             )
             index += 1
+
+    def _drone(self, image: Optional[np.ndarray], path: _TargetPath, model: DroneModel, pose, zoom_mid: float,
+               dir_prev, shapes, haze_colour) -> Tuple[Optional[np.ndarray], float, float, np.ndarray]:
+        """Draw one drone (when ``image`` is given and the target is rendered): its visible box, the
+        visible share, its span in px and its direction (the next frame's ``dir_prev``)."""
+        w, h = self.width, self.height
+        dirs = [direction(path.yaw, path.pitch)] + ([] if dir_prev is None else [dir_prev])
+        uv, depth = self.lens.project_directions(pose, np.array(dirs))
+        xy = uv[0]
+        span = path.span_px(pose.zoom, zoom_mid)
+        # Blur by the target's own motion only: the backdrop is not blurred by camera motion,
+        # so blurring the target by it would make the target stand out unnaturally.
+        blur = np.zeros(2) if dir_prev is None else (xy - uv[1]) * EXPOSURE_FRACTION
+        blur_len = float(np.hypot(*blur))
+        if blur_len > MAX_BLUR_PX:
+            blur *= MAX_BLUR_PX / blur_len
+        box, seen = None, 0.0
+        reach = span + MAX_BLUR_PX
+        if depth[0] > 0 and -reach < xy[0] < w + reach and -reach < xy[1] < h + reach:
+            tilt = (0.25 * path.vel[1] / 0.05, -0.25 * path.vel[0] / 0.05) if path.flying else (0.0, 0.0)
+            tilt = (float(np.clip(tilt[0], -0.35, 0.35)), float(np.clip(tilt[1], -0.35, 0.35)))
+            haze = 0.35 * (1.0 - (span - self.target_px[0]) / max(self.target_px[1] - self.target_px[0], 1e-6))
+            sprite = model.render(span, (float(xy[0]), float(xy[1])), path.heading, path.view_elev, tilt,
+                                  (float(blur[0]), float(blur[1])), haze=haze, haze_colour=haze_colour)
+            box, seen = self._composite(image, sprite, shapes)
+        return box, seen, span, dirs[0]
 
     def _composite(self, image: Optional[np.ndarray], sprite, shapes) -> Tuple[Optional[np.ndarray], float]:
         """Blend the sprite in (if rendering the target and given an image); return the box of its
