@@ -177,6 +177,11 @@ class ScanConfig(Section):
         0.5, gt=0, le=1,
         description="Scan only frames that GAD's input down-scales to this or less (1080p into 640x384: 0.33).",
     )
+    points: bool = Field(
+        True,
+        description="On scanned frames, also propose isolated 2-8 px spots of either polarity (payload.detect.points): "
+                    "on the scan's tiles, and in the search region when LAD and LMD find nothing.",
+    )
 
 
 class GlobalStageConfig(StageConfig):
