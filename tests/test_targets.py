@@ -40,7 +40,7 @@ def _centre(xyxy):
 
 def _run(clip, **overrides):
     frames, truth = clip
-    glad = Glad(config_with(Config(), **overrides).detector)
+    glad = Glad(config_with(Config(), **{"detector.targets.max": 3, **overrides}).detector)
     return [glad.process(f) for f in frames], truth
 
 
@@ -122,6 +122,7 @@ def _spot_glad(tmp_path, **overrides):
         "detector.classifier.lock_hits": 0,
         "detector.classifier.confirm_hits": 0,
         "detector.verifier.enabled": False,
+        "detector.targets.max": 3,  # the default is 1 (docs/results.md)
         **overrides,
     })
     return Glad(cfg.detector, build_detectors(cfg.detector))
@@ -302,11 +303,11 @@ def test_targets_config_errors_are_one_line(tmp_path, text, expected):
 
 def test_targets_config_defaults_and_a_file_setting_them(tmp_path):
     t = Config().detector.targets
-    assert (t.max, t.primary, t.search_every) == (3, "centre", 5)
-    path = tmp_path / "one.yaml"
-    path.write_text("detector:\n  targets:\n    max: 1\n")
-    t = load_config(str(path)).detector.targets
     assert (t.max, t.primary, t.search_every) == (1, "centre", 5)
+    path = tmp_path / "three.yaml"
+    path.write_text("detector:\n  targets:\n    max: 3\n")
+    t = load_config(str(path)).detector.targets
+    assert (t.max, t.primary, t.search_every) == (3, "centre", 5)
 
 
 # --- records ------------------------------------------------------------------------------------

@@ -4,9 +4,11 @@ Per frame, chosen by each target's switcher:
 - global: appearance (GAD) on the down-scaled full frame; only if it finds nothing, motion
   (GMD) on the full frame, its candidates checked by the 32x32 classifier; if that finds
   nothing either on a frame GAD down-scales strongly (1080p), GAD's look at native
-  resolution: the local detector on a few tiles of the frame in turn (payload.detect.scan);
+  resolution: the local detector on a few tiles of the frame in turn (payload.detect.scan),
+  and isolated 2-8 px spots on the same tiles (payload.detect.points);
 - local: appearance (LAD) inside the target's search region at native resolution; only if it
-  finds nothing, motion (LMD) inside the region, checked by the classifier.
+  finds nothing, motion (LMD) inside the region, checked by the classifier; on frames the scan
+  searches, then isolated spots in the region, checked by the classifier.
 A hit moves/keeps the switcher on local and updates the search region; a local miss grows
 the region around its prediction until the switcher gives up. Local hits farther than
 max_jump_px from the prediction are ignored, unless one would have started a target globally
@@ -36,6 +38,7 @@ from payload.config import DetectorConfig, section_changes
 from payload.detect.ego_motion import CameraMotion, EgoMotion, GreyLevels
 from payload.detect.factory import DetectorModels, build_detectors
 from payload.detect.motion import MotionDetector
+from payload.detect.points import PointDetector
 from payload.detect.scan import NativeScan
 from payload.detect.switcher import GLOBAL, LOCAL
 from payload.detect.tracks import Track, TrackedTarget, is_far, merge_overlapping, overlap, primary_of
@@ -95,6 +98,7 @@ class Glad:
         self.gmd = MotionDetector(cfg.global_.motion, GMD)
         self.lmd = MotionDetector(cfg.local.motion, LMD)
         self.scan = NativeScan()
+        self.points = PointDetector()
         self.tracks: List[Track] = []  # the targets followed, oldest (lowest id) first
         self._next_id = 1
         self._since_search = 0  # frames since the global stage last ran
@@ -374,6 +378,13 @@ class Glad:
             # the region's camera motion, not one of its own: one estimate a frame
             found = self._motion(self.lmd, frame.image, prev.full[y1:y2, x1:x2], grey.full[y1:y2, x1:x2],
                                  camera.for_crop((x1, y1)), (x1, y1), time.perf_counter(), timings, candidates)
+        if not len(found) and self.cfg.global_.scan.points and self._scanned(frame):
+            t = time.perf_counter()
+            spots = self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1))
+            spots = Detections(spots.xyxy, spots.score, np.full(len(spots), LAD, "<U3"))
+            candidates.append(spots)
+            _add(timings, "points", _ms(t))
+            found = self._confirm(frame.image, spots, rescore=True, timings=timings)
         t = time.perf_counter()
         near, near_distance, far = self._gate(found, predicted)
         best = self._pick(near, near_distance)
@@ -425,19 +436,26 @@ class Glad:
     def _scan(self, frame: Frame, timings: Dict[str, float]) -> Detections:
         """Native-resolution hits on this frame's scan tiles (payload.detect.scan), as GAD hits.
         Off without a local appearance detector, and on frames GAD's input hardly down-scales."""
-        lad, gad, scan = self.models.local_appearance, self.models.global_appearance, self.cfg.global_.scan
-        if lad is None or not self.cfg.local.appearance.enabled or not scan.tiles_per_frame:
-            return Detections.empty()
-        w, h = frame.size_wh
-        if min(gad.input_wh[0] / float(w), gad.input_wh[1] / float(h)) > scan.max_input_scale:
+        lad, scan = self.models.local_appearance, self.cfg.global_.scan
+        if lad is None or not self.cfg.local.appearance.enabled or not scan.tiles_per_frame or not self._scanned(frame):
             return Detections.empty()
         t = time.perf_counter()
-        parts = [lad.detect(frame.image[y1:y2, x1:x2], offset_xy=(float(x1), float(y1)))
-                 for x1, y1, x2, y2 in self.scan.next_tiles((w, h), lad.input_wh, scan.tiles_per_frame)]
+        tiles = self.scan.next_tiles(frame.size_wh, lad.input_wh, scan.tiles_per_frame)
+        parts = [lad.detect(frame.image[y1:y2, x1:x2], offset_xy=(float(x1), float(y1))) for x1, y1, x2, y2 in tiles]
         found = Detections.concat(parts)
         found = found[found.score >= self.cfg.global_.appearance.confidence]  # T0: these are GAD hits
+        if scan.points:
+            spots = Detections.concat([self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(float(x1), float(y1)))
+                                       for x1, y1, x2, y2 in tiles])
+            found = Detections.concat([found, _outside(spots, found)])  # where the network hit, its box stands
         timings["scan"] = _ms(t)
         return Detections(found.xyxy, found.score, np.full(len(found), GAD, "<U3"))
+
+    def _scanned(self, frame: Frame) -> bool:
+        """Whether GAD's input down-scales this frame enough to need the native-resolution looks."""
+        gad, scan = self.models.global_appearance, self.cfg.global_.scan
+        w, h = frame.size_wh
+        return gad is not None and min(gad.input_wh[0] / float(w), gad.input_wh[1] / float(h)) <= scan.max_input_scale
 
     def _acquire(self, track: Track, frame: Frame, best: Detections, timings: Dict[str, float]) -> Target:
         """A new target for ``track``: its search region starts around it, its lock judged afresh."""
@@ -544,6 +562,15 @@ class Glad:
 def _add(timings: Dict[str, float], key: str, ms: float) -> None:
     """Add to a frame's time of ``key`` (a module may run once per target)."""
     timings[key] = timings.get(key, 0.0) + ms
+
+
+def _outside(dets: Detections, boxes: Detections) -> Detections:
+    """``dets`` whose centre lies in none of ``boxes``."""
+    if not len(dets) or not len(boxes):
+        return dets
+    c, b = dets.centers[:, None, :], boxes.xyxy[None]
+    inside = ((c[..., 0] >= b[..., 0]) & (c[..., 0] < b[..., 2]) & (c[..., 1] >= b[..., 1]) & (c[..., 1] < b[..., 3])).any(axis=1)
+    return dets[~inside]
 
 
 def _ms(t_start: float) -> float:

@@ -81,11 +81,14 @@ class DroneModel:
         self.motors = [self.motor] * 4
         self.motor_r = 0.03
         if look == "light":  # drawn after the rest, so "any" scenes keep their random stream
-            body = rng.uniform(175, 235) if rng.random() < 0.6 else rng.uniform(140, 180)
+            # white in sunlight: the real small white drones of Halmstad stand 77-98 grey levels
+            # above their sky (docs/results.md, "Tiny light drones"); 140-235 made them isoluminant
+            body = rng.uniform(225, 255)
             self.body = np.array([body, body, body * rng.uniform(0.97, 1.03)])
             self.underside = np.minimum(self.body * rng.uniform(0.85, 1.05), 245)
             self.arm = self.body * rng.uniform(0.85, 1.0)
-            self.rotor = np.full(3, rng.uniform(150, 220))
+            self.rotor = np.full(3, rng.uniform(200, 240))
+            self.rotor_alpha = rng.uniform(0.45, 0.6)
             self.motor = self.body * rng.uniform(0.4, 0.8)
             if rng.random() < 0.5:  # a lit LED looks bigger than the motor it sits on
                 self.motors, self.motor_r = [NAV_RED, NAV_RED, NAV_GREEN, NAV_GREEN], 0.05

@@ -1,0 +1,113 @@
+"""The isolated-spot detector (payload.detect.points) and its place in the scan and the local stage."""
+
+import numpy as np
+import pytest
+
+from payload.detect.points import PointDetector
+
+
+def _sky(h=240, w=320, seed=0):
+    """A smooth sky gradient with sensor noise (sd 2 grey levels)."""
+    rng = np.random.default_rng(seed)
+    grey = np.linspace(150, 190, h)[:, None] + np.zeros((1, w)) + rng.normal(0, 2, (h, w))
+    return np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[..., None], 3, axis=2)
+
+
+def _centres(dets):
+    return [tuple(np.round(c).astype(int)) for c in dets.centers]
+
+
+def test_a_white_and_a_black_spot_on_the_sky_are_found_with_their_boxes():
+    image = _sky()
+    image[100:104, 60:64] = 245  # a 4 px white drone
+    image[50:54, 200:204] = 40  # a dark one
+    found = PointDetector().detect(image, offset_xy=(1000, 500))
+    assert sorted(_centres(found)) == [(1062, 602), (1202, 552)]
+    boxes = {tuple(np.round(c).astype(int)): b for c, b in zip(found.centers, found.xyxy)}
+    assert boxes[(1062, 602)].tolist() == [1059, 599, 1065, 605]  # the spot and a pixel around it
+    assert np.all((found.score > 0.5) & (found.score < 1)) and list(found.module) == ["GAD", "GAD"]
+
+
+def test_faint_spots_noise_and_large_objects_are_not_spots():
+    image = _sky()
+    image[100:104, 60:64] += 5  # 5 grey levels: below min_contrast 8
+    image[30:90, 150:230] = 60  # a 60x80 px object: a helicopter, a roof, not a spot
+    assert len(PointDetector().detect(image)) == 0
+
+
+def test_a_spot_in_texture_is_not_isolated():
+    rng = np.random.default_rng(3)
+    image = _sky()
+    image[:, :160] = rng.integers(60, 200, (240, 160, 1), dtype=np.uint8)  # textured ground on the left
+    image[120:124, 80:84] = 250  # as bright as anywhere, but among neighbours as strong
+    image[120:124, 240:244] = 250  # the same on the sky
+    assert _centres(PointDetector().detect(image)) == [(242, 122)]
+
+
+def test_strongest_first_and_at_most_max_points():
+    image = _sky()
+    for k in range(12):
+        image[20 + 15 * k:23 + 15 * k, 40 + 20 * k:43 + 20 * k] = 200 + 4 * k
+    found = PointDetector(max_points=5).detect(image)
+    assert len(found) == 5 and np.all(np.diff(found.score) <= 0)
+    assert min(c[1] for c in _centres(found)) >= 20 + 15 * 6  # the five brightest (last) spots
+
+
+def test_a_tiny_image_has_no_spots():
+    assert len(PointDetector().detect(np.full((10, 10, 3), 128, np.uint8))) == 0
+
+
+def _grey_spot_frame(index, xy=(1000, 600), size_wh=(1280, 768)):
+    """A dim sky (60-90 grey) with a 4 px spot at 120: too dim for the bright-spot network (it
+    answers above mid-grey), plain to the spot detector."""
+    from payload.types import Frame
+
+    image = _sky(size_wh[1], size_wh[0], seed=index) // 2
+    image[xy[1]:xy[1] + 4, xy[0]:xy[0] + 4] = 120
+    return Frame(image, index, index * 33_000_000, 0)
+
+
+@pytest.mark.parametrize("points", [True, False])
+def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points):
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.tiles_per_frame": 2, "detector.global.scan.points": points,
+                                   "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it either
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+    results = [glad.process(_grey_spot_frame(i)) for i in range(12)]  # 15 tiles: all seen in 8 frames
+    hits = [r for r in results if len(r.detections)]
+    if not points:
+        assert not hits and all(len(r.candidates) == 0 for r in results)  # the network never sees it
+        return
+    first = hits[0]
+    assert first.mode == "global" and list(first.detections.module) == ["GAD"]
+    assert first.detections.xyxy[0].tolist() == [999, 599, 1005, 605]
+    after = results[results.index(first) + 1:]
+    assert after and all(r.mode == "local" and len(r.detections) for r in after)  # followed by the spot cue
+    assert all("points" in r.timings_ms for r in after)
+    assert all(np.allclose(r.target.xyxy, [999, 599, 1005, 605], atol=3) for r in after)
+
+
+def test_no_spots_where_the_global_input_keeps_most_of_the_resolution(tmp_path):
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0})
+    results = [glad.process(_grey_spot_frame(i, xy=(500, 400), size_wh=(640, 512))) for i in range(8)]
+    assert not any(len(r.candidates) for r in results)  # 640x512 is not scanned: Halmstad's clips unchanged
+
+
+def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.tiles_per_frame": 2, "detector.local.appearance.confidence": 0.5,
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+    i = 0
+    while not len(glad.process(_grey_spot_frame(i)).detections):
+        i += 1
+        assert i < 12
+    # the brightness classifier gives this dim patch well under 0.5
+    glad.models.classifier.update_config(glad.cfg.classifier.model_copy(update={"threshold": 0.5}))
+    after = glad.process(_grey_spot_frame(i + 1))
+    assert after.mode == "local" and not len(after.detections) and len(after.candidates) == 1
