@@ -2,10 +2,10 @@
 
 Per frame, chosen by each target's switcher:
 - global: appearance (GAD) on the down-scaled full frame; only if it finds nothing, motion
-  (GMD) on the full frame, its candidates checked by the 32x32 classifier; if that finds
-  nothing either on a frame GAD down-scales strongly (1080p), GAD's look at native
-  resolution: the local detector on a few tiles of the frame in turn (payload.detect.scan),
-  and isolated 2-8 px spots on the same tiles (payload.detect.points);
+  (GMD) on the full frame, its candidates checked by the 32x32 classifier. A frame GAD
+  down-scales strongly (1080p) is searched in two turns, one a frame: GAD then GMD, and next
+  GAD's look at native resolution: the local detector on a few tiles of the frame in turn
+  (payload.detect.scan) and isolated 2-8 px spots on the same tiles (payload.detect.points);
 - local: appearance (LAD) inside the target's search region at native resolution; only if it
   finds nothing, motion (LMD) inside the region, checked by the classifier; on frames the scan
   searches, then isolated spots in the region, checked by the classifier.
