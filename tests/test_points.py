@@ -75,7 +75,7 @@ def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points
                                    "detector.global.scan.tiles_per_frame": 2, "detector.global.scan.points": points,
                                    "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it either
                                    "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    results = [glad.process(_grey_spot_frame(i)) for i in range(20)]  # 15 tiles: all seen in 8 scan turns (16 frames)
+    results = [glad.process(_grey_spot_frame(i)) for i in range(12)]  # 15 tiles: all seen in 8 frames
     hits = [r for r in results if len(r.detections)]
     if not points:
         assert not hits and all(len(r.candidates) == 0 for r in results)  # the network never sees it
@@ -106,7 +106,7 @@ def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
     i = 0
     while not len(glad.process(_grey_spot_frame(i)).detections):
         i += 1
-        assert i < 20
+        assert i < 12
     # the brightness classifier gives this dim patch well under 0.5
     glad.models.classifier.update_config(glad.cfg.classifier.model_copy(update={"threshold": 0.5}))
     after = glad.process(_grey_spot_frame(i + 1))

@@ -169,7 +169,6 @@ class ScanConfig(Section):
     # 0.680 with 4 tiles a frame, 0.700 with 6 (scan after GMD, hits at T0 and classifier 0.8). 4: a frame
     # spent searching costs ~8 ms more (6: ~13 ms); the whole 1080p frame (32 tiles) is seen every 8 frames.
     # Halmstad val (640x512, input scale 0.75) scanned on every frame fell from F 0.830 to 0.809: max_input_scale.
-    # Since 2026-12-03 a scanned frame's search alternates (GAD + GMD, then the scan): 32 tiles in 16 frames.
     tiles_per_frame: int = Field(
         4, ge=0, le=1000,
         description="Native-resolution tiles the local appearance detector searches per global frame, in turn; 0 = off.",

@@ -2,10 +2,10 @@
 
 Per frame, chosen by each target's switcher:
 - global: appearance (GAD) on the down-scaled full frame; only if it finds nothing, motion
-  (GMD) on the full frame, its candidates checked by the 32x32 classifier. A frame GAD
-  down-scales strongly (1080p) is searched in two turns, one a frame: GAD then GMD, and next
-  GAD's look at native resolution: the local detector on a few tiles of the frame in turn
-  (payload.detect.scan) and isolated 2-8 px spots on the same tiles (payload.detect.points);
+  (GMD) on the full frame, its candidates checked by the 32x32 classifier; if that finds
+  nothing either on a frame GAD down-scales strongly (1080p), GAD's look at native
+  resolution: the local detector on a few tiles of the frame in turn (payload.detect.scan),
+  and isolated 2-8 px spots on the same tiles (payload.detect.points);
 - local: appearance (LAD) inside the target's search region at native resolution; only if it
   finds nothing, motion (LMD) inside the region, checked by the classifier; on frames the scan
   searches, then isolated spots in the region, checked by the classifier.
@@ -102,7 +102,6 @@ class Glad:
         self.tracks: List[Track] = []  # the targets followed, oldest (lowest id) first
         self._next_id = 1
         self._since_search = 0  # frames since the global stage last ran
-        self._scan_turn = False  # on scanned frames the global stage alternates: GAD + GMD, then the scan
         # this frame's camera motion for the local stage (one estimate for every track) and its matrix
         self._camera: Optional[CameraMotion] = None
         self._homography: Optional[np.ndarray] = None
@@ -198,7 +197,6 @@ class Glad:
         self.tracks = []
         self._next_id = 1
         self._since_search = 0
-        self._scan_turn = False
         self.scan.reset()
         self._prev = self._prev_t_ns = None
 
@@ -296,21 +294,14 @@ class Glad:
 
         found = Detections.empty()
         gad = self.models.global_appearance
-        # A frame GAD down-scales strongly (1080p) is searched in two turns, one a frame: GAD and
-        # GMD, then the native-resolution scan (issue 19: the three in one frame took ~55 ms, a
-        # 30 FPS camera gives 33).
-        spread = self._scannable(frame)
-        scan_turn = spread and self._scan_turn
-        self._scan_turn = spread and not self._scan_turn
-        if gad is not None and self.cfg.global_.appearance.enabled and not scan_turn:
+        if gad is not None and self.cfg.global_.appearance.enabled:
             found = keep(self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates))
         prev = self._prev
-        if (not len(found) and not scan_turn and self.cfg.global_.motion.enabled and prev is not None
-                and prev.full.shape == grey.full.shape):
+        if not len(found) and self.cfg.global_.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
             t = time.perf_counter()
             camera = self.ego_motion.estimate(prev, grey, fine=True)
             found = keep(self._motion(self.gmd, frame.image, prev.full, grey.full, camera, (0, 0), t, timings, candidates))
-        if not len(found) and gad is not None and self.cfg.global_.appearance.enabled and (scan_turn or not spread):
+        if not len(found) and gad is not None and self.cfg.global_.appearance.enabled:
             scanned = self._scan(frame, timings)
             candidates.append(scanned)
             # Four native-resolution tiles a frame meet many more birds than GAD's down-scaled
@@ -459,13 +450,6 @@ class Glad:
             found = Detections.concat([found, _outside(spots, found)])  # where the network hit, its box stands
         timings["scan"] = _ms(t)
         return Detections(found.xyxy, found.score, np.full(len(found), GAD, "<U3"))
-
-    def _scannable(self, frame: Frame) -> bool:
-        """Whether the scan would run on this frame (payload.detect.scan)."""
-        lad = self.models.local_appearance
-        return (lad is not None and self.cfg.local.appearance.enabled and bool(self.cfg.global_.scan.tiles_per_frame)
-                and self.models.global_appearance is not None and self.cfg.global_.appearance.enabled
-                and self._scanned(frame))
 
     def _scanned(self, frame: Frame) -> bool:
         """Whether GAD's input down-scales this frame enough to need the native-resolution looks."""
