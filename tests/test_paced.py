@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from test_capture import _level, _paint_index, _painted_index  # the test clips' frame marks
 
 from payload.capture import open_source
 from payload.capture.base import EndOfStream, SourceStats
@@ -27,10 +28,6 @@ from payload.errors import SourceError
 EARLY_S = 0.002  # clock granularity
 
 
-def _level(index):
-    return 20 + 2 * index
-
-
 def _folder(path, n, corrupt=()):
     """n 8x8 images painted with _level(index); those in ``corrupt`` are not images."""
     path.mkdir(exist_ok=True)
@@ -41,16 +38,6 @@ def _folder(path, n, corrupt=()):
         else:
             cv2.imwrite(str(name), np.full((8, 8, 3), _level(i), np.uint8))
     return str(path)
-
-
-def _paint_index(image, index):
-    for bit in range(8):
-        image[-20:, 20 * bit: 20 * bit + 20] = 255 if (index >> bit) & 1 else 0
-    return image
-
-
-def _painted_index(image):
-    return sum(1 << bit for bit in range(8) if image[-16:-4, 20 * bit + 4: 20 * bit + 16].mean() > 128)
 
 
 @pytest.fixture(scope="module")
