@@ -380,8 +380,7 @@ class Glad:
                                  camera.for_crop((x1, y1)), (x1, y1), time.perf_counter(), timings, candidates)
         if not len(found) and self.cfg.global_.scan.points and self._scanned(frame):
             t = time.perf_counter()
-            spots = self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1))
-            spots = Detections(spots.xyxy, spots.score, np.full(len(spots), LAD, "<U3"))
+            spots = self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1), module=LAD)
             candidates.append(spots)
             _add(timings, "points", _ms(t))
             found = self._confirm(frame.image, spots, rescore=True, timings=timings)

@@ -13,25 +13,26 @@ judges the track before anything is reported. Not in the paper.
 import cv2
 import numpy as np
 
-from payload.types import Detections
+from payload.types import GAD, Detections
 
 _RING_PX = 25  # the neighbourhood a spot must stand alone in
 _HOLE_PX = 9  # ... not counting itself
 
 
 class PointDetector:
-    """``detect(image, offset_xy)`` -> Detections of isolated spots, strongest first."""
+    """``detect(image, offset_xy, module)`` -> Detections of isolated spots, strongest first."""
 
     def __init__(self, kernel_px: int = 11, min_contrast: float = 8.0, min_isolation: float = 1.5,
-                 max_points: int = 8, module: str = "GAD") -> None:
+                 max_points: int = 8) -> None:
         self.kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (kernel_px, kernel_px))
         self.ring = np.ones((_RING_PX, _RING_PX), np.uint8)
         lo = (_RING_PX - _HOLE_PX) // 2
         self.ring[lo:lo + _HOLE_PX, lo:lo + _HOLE_PX] = 0
         self.min_contrast, self.min_isolation = float(min_contrast), float(min_isolation)
-        self.max_points, self.module = int(max_points), module
+        self.max_points = int(max_points)
 
-    def detect(self, image_bgr: np.ndarray, offset_xy=(0.0, 0.0)) -> Detections:
+    def detect(self, image_bgr: np.ndarray, offset_xy=(0.0, 0.0), module: str = GAD) -> Detections:
+        """``module``: whose hits they are (GAD on the scan's tiles, LAD in a search region)."""
         grey = image_bgr if image_bgr.ndim == 2 else cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
         if min(grey.shape[:2]) < _RING_PX:
             return Detections.empty()
@@ -55,4 +56,4 @@ class PointDetector:
         xyxy = np.asarray(boxes, np.float32)[order] + np.float32([offset_xy[0], offset_xy[1]] * 2)
         # score: the isolation mapped into (0, 1) so that it ranks beside network scores
         score = 1.0 - 1.0 / np.asarray(scores, np.float32)[order]
-        return Detections(xyxy, score, self.module)
+        return Detections(xyxy, score, module)
