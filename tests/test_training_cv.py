@@ -8,7 +8,9 @@ import pytest
 pytest.importorskip("torch")  # training/ needs the training environment
 
 from payload.eval.folds import Folds  # noqa: E402
+from training.cv_cls_thermal import hard_sets  # noqa: E402
 from training.cv_train import Log, run_stage, select  # noqa: E402
+from training.mine_tracks import fold_of  # noqa: E402
 
 NAMES = ["V_DRONE_001", "V_DRONE_031", "IR_DRONE_001", "IR_DRONE_041", "V_BIRD_001", "V_AIRPLANE_031",
          "IR_BIRD_001", "IR_HELICOPTER_021"]
@@ -26,6 +28,17 @@ def test_a_fold_trains_on_no_clip_it_holds_out():
     assert held == {"V_DRONE_001", "IR_DRONE_001", "V_BIRD_001", "IR_BIRD_001"}
     assert not held & set(outside)
     assert select(NAMES, "V", False, limit=1) == ["V_DRONE_001"]
+
+
+def test_a_fold_is_mined_and_taught_only_by_what_never_saw_it():
+    folds = Folds({"k": 3, "block_size": 10, "kinds": {"IR_BIRD": [[1, 10], [11, 20], [21, 999]]}})
+    assert [fold_of(folds, n) for n in ("IR_BIRD_005", "IR_BIRD_015", "IR_BIRD_025")] == [0, 1, 2]
+    # synthetic scenes: the seed decides, the same for every kind of scene
+    assert [fold_of(folds, n) for n in ("SYN_DRONE_5000", "SYN_EMPTY_6001", "SYN_LIGHT_DRONE_7005")] == [2, 1, 0]
+    objects = ["irobj0", "irobj1", "irobj2"]
+    assert hard_sets(objects, "1") == ["irobj0", "irobj2"]
+    assert hard_sets(objects, "0") == ["irobj1", "irobj2"]
+    assert hard_sets(objects, "all") == objects
 
 
 def _write(path, text):

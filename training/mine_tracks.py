@@ -1,6 +1,7 @@
 """Mine the locks GLAD follows, frame by frame, for the lock verifier (payload/detect/verify.py).
 
-Runs GLAD with the default config (the shipped models, or a fold's with --models) over Halmstad
+Runs GLAD with the default config (the shipped models, or with --fold-models DIR each clip's fold's
+networks from DIR/fold{k}/, so that a fold is mined by networks that never saw it) over Halmstad
 clips and synthetic scenes, and keeps, for every frame in which GLAD follows a lock (reported or
 not), the verifier's feature row, the lock's number within the clip, whether LockCheck has
 confirmed it, the box that frame would report, and the drone's labelled box nearest to it. The
@@ -11,7 +12,9 @@ several shards can run side by side:
   python training/mine_tracks.py --out training/cache/tracks --synthetic 24 --shard 0 --shards 1
 
 Synthetic scenes: seeds 5000.. with a drone and ground movers (cars) under ego-motion, and seeds
-6000.. without the drone (``render_target=False``, more cars): every lock there is false.
+6000.. without the drone (``render_target=False``, more cars): every lock there is false. With
+``--tiny-light N``, seeds 7000.. are issue 16's tiny white drone (configs/tiny-light-sky.yaml: 3-6 px,
+light airframe, clear sky, above the horizon), so the verifier learns what such a lock looks like.
 """
 
 import argparse
@@ -22,16 +25,24 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from payload.config import load_config  # noqa: E402
+from payload.config import config_with, load_config  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
 from payload.detect.verify import N_FEATURES  # noqa: E402
-from payload.eval.cv import halmstad_clips  # noqa: E402
+from payload.eval.cv import fold_model_files, halmstad_clips  # noqa: E402
+from payload.eval.folds import load_folds  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
 from payload.types import Frame  # noqa: E402
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "data", "halmstad")
-SYNTH_DRONE_SEED, SYNTH_EMPTY_SEED = 5000, 6000
+SYNTH_DRONE_SEED, SYNTH_EMPTY_SEED, SYNTH_LIGHT_SEED = 5000, 6000, 7000
+
+
+def fold_of(folds, name: str) -> int:
+    """A clip's fold; a synthetic scene's is its seed modulo the number of folds."""
+    if name.startswith("SYN_"):
+        return int(name.rsplit("_", 1)[1]) % folds.k
+    return folds.fold_of(name)
 
 
 def nearest(gt: np.ndarray, box) -> np.ndarray:
@@ -109,6 +120,11 @@ def jobs(args):
                               render_target=with_drone)
                 return scene_frames(scene)
             out.append(("SYN_%s_%d" % ("DRONE" if with_drone else "EMPTY", seed), frames))
+    for k in range(args.tiny_light):
+        def frames(seed=SYNTH_LIGHT_SEED + k):
+            return scene_frames(Scene(seed=seed, frames=args.scene_frames, target_px=(3.0, 6.0), drone_look="light",
+                                      sky="clear", target_in_sky=True))
+        out.append(("SYN_LIGHT_DRONE_%d" % (SYNTH_LIGHT_SEED + k), frames))
     # shuffled (a fixed order): a run stopped part-way still covers every kind and every fold evenly
     order = np.random.default_rng(0).permutation(len(out))
     out = [out[n] for n in order]
@@ -123,26 +139,40 @@ def main():
     ap.add_argument("--shard", type=int, default=0)
     ap.add_argument("--shards", type=int, default=1)
     ap.add_argument("--synthetic", type=int, default=0, help="synthetic scene pairs (drone / empty)")
+    ap.add_argument("--tiny-light", type=int, default=0, help="tiny white drone scenes (3-6 px, clear sky)")
     ap.add_argument("--synthetic-only", action="store_true")
     ap.add_argument("--scene-frames", type=int, default=150)
+    ap.add_argument("--fold-models", default=None, metavar="DIR",
+                    help="run each clip with the networks of its fold: DIR/fold{k}/glad_*.onnx")
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
     import cv2
 
     cv2.setNumThreads(1)  # one core per shard: shards side by side must not fight over threads
     cfg = load_config(args.config)
-    # the verifier off: every lock is followed and reported as today, its rows recorded all the same;
-    # one target at a time: a lock's rows are one track's
-    glad = Glad(cfg.detector.model_copy(update={
-        "threads": 1, "verifier": cfg.detector.verifier.model_copy(update={"enabled": False}),
-        "targets": cfg.detector.targets.model_copy(update={"max": 1})}))
+    folds = load_folds()
+
+    def make_glad(fold):
+        det = cfg
+        if args.fold_models:
+            det = config_with(cfg, **fold_model_files(args.fold_models, [fold])[fold])
+        # the verifier off: every lock is followed and reported as today, its rows recorded all the
+        # same; one target at a time: a lock's rows are one track's
+        return Glad(det.detector.model_copy(update={
+            "threads": 1, "verifier": det.detector.verifier.model_copy(update={"enabled": False}),
+            "targets": det.detector.targets.model_copy(update={"max": 1})}))
+
+    glads = {}
     todo = jobs(args)
     for n, (name, frames) in enumerate(todo):
         path = os.path.join(args.out, name + ".npz")
         if os.path.exists(path):
             continue
         t = time.time()
-        arrays = run(glad, frames())
+        fold = fold_of(folds, name) if args.fold_models else -1
+        if fold not in glads:
+            glads[fold] = make_glad(fold)
+        arrays = run(glads[fold], frames())
         tmp = path + ".tmp.npz"
         np.savez_compressed(tmp, **arrays)
         os.replace(tmp, path)

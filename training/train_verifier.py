@@ -27,23 +27,20 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.detect.verify import FEATURES, N_FEATURES  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
+from training.mine_tracks import fold_of  # noqa: E402
 
 WINDOW = 16
 GROUPS = ("visible drones", "thermal drones", "visible negatives", "thermal negatives", "synthetic drones",
-          "synthetic empty")
+          "tiny light drones", "synthetic empty")
 
 
 def group_of(name: str) -> str:
+    if name.startswith("SYN_LIGHT_DRONE"):
+        return "tiny light drones"
     if name.startswith("SYN_"):
         return "synthetic drones" if name.startswith("SYN_DRONE") else "synthetic empty"
     sensor = "visible" if name.startswith("V_") else "thermal"
     return "%s %s" % (sensor, "drones" if "_DRONE_" in name else "negatives")
-
-
-def fold_of(folds, name: str) -> int:
-    if name.startswith("SYN_"):
-        return int(name.rsplit("_", 1)[1]) % folds.k
-    return folds.fold_of(name)
 
 
 def load(tracks_dir: str) -> List[Dict]:

@@ -1,0 +1,97 @@
+"""Teach the shipped classifier the thermal birds, airliners and helicopters, one fold at a time.
+
+The thermal negatives were in no network's training, and the lock the payload holds on them is
+on the labelled object in 93 % of the frames (the mined locks of training/mine_tracks.py): a
+thermal bird or airliner passes the 32x32 classifier as a drone. This fine-tunes the shipped
+classifier (payload/models/glad_classifier.onnx, BatchNorm frozen) with those objects as hard
+negatives, beside its own Halmstad and thermal drone patches so that it keeps the drones:
+
+  caches   build_cache.py (train + negatives_train: cls_x/cls_y), build_cache.py --name ir
+           (thermal drone patches), and per fold k build_cache.py --objects over the thermal
+           negatives clips IN fold k (irobj{k}_cls.npz: each labelled object jittered, every 2nd frame)
+  fold k   train_cls.py --init glad_classifier.onnx --hard irobj{j}_cls.npz for every j != k,
+           exported to OUT/fold{k}/glad_classifier.onnx beside the shipped global and local networks
+  all      the same with every fold's objects: OUT/all/glad_classifier.onnx (the one that would ship)
+
+so ``glad-payload cv --fold-models OUT`` and ``training/mine_tracks.py --fold-models OUT`` score
+each fold's thermal negatives with a classifier that never saw them. The drone side stays as
+optimistic as the shipped networks (they saw most drone clips). Every stage is skipped once done
+and training resumes from its checkpoint (training/cv_train.py's run_stage):
+
+  nice -n 10 python training/cv_cls_thermal.py --log training/runs/cv/clsir/train.log
+"""
+
+import argparse
+import os
+import shutil
+import sys
+from typing import List, Optional
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+sys.path.insert(0, REPO)
+from payload.eval.folds import clip_frames, load_folds  # noqa: E402
+from training.cv_train import PY, Log, run_stage, select  # noqa: E402
+from training.halmstad import HALMSTAD  # noqa: E402
+
+SHIPPED = os.path.join(REPO, "payload", "models")
+
+
+def hard_sets(objects: List[str], target: str) -> List[str]:
+    """The thermal-object sets (one per fold, ``objects[j]`` from fold j's clips) that the classifier
+    of ``target`` ('0', '1', ... or 'all') may train on: every fold's but its own."""
+    return [path for j, path in enumerate(objects) if target == "all" or j != int(target)]
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--tag", default="clsir", help="runs and models under training/runs/cv/TAG/")
+    ap.add_argument("--steps", type=int, default=1500)
+    ap.add_argument("--lr", type=float, default=5e-4)
+    ap.add_argument("--hard-frac", type=float, default=0.25)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--log", default=None)
+    args = ap.parse_args(argv)
+    log = Log(args.log)
+    folds = load_folds()
+    names = sorted(clip_frames(HALMSTAD))
+    cache = os.path.join(HERE, "cache")
+    run_root = os.path.join(HERE, "runs", "cv", args.tag)
+    models_root = os.path.join(run_root, "models")
+
+    run_stage(log, "cache", os.path.join(cache, ".done-cache"), [PY, "training/build_cache.py"],
+              [os.path.join(cache, f) for f in ("cls_x.npy", "cls_y.npy")])
+    run_stage(log, "thermal cache", os.path.join(cache, ".done-ir"),
+              [PY, "training/build_cache.py", "--split", "ir_train", "--name", "ir"], [os.path.join(cache, "ir_cls.npz")])
+    objects = []
+    for fold in range(folds.k):
+        clips = [n for n in select(names, "IR", True) if folds.fold_of(n) == fold]
+        path = os.path.join(cache, "irobj%d_cls.npz" % fold)
+        run_stage(log, "thermal objects fold %d (%d clips)" % (fold, len(clips)), os.path.join(cache, ".done-irobj%d" % fold),
+                  [PY, "training/build_cache.py", "--split", "ir_negatives_train", "--objects", "--name",
+                   "irobj%d" % fold, "--clips"] + clips, [path])
+        objects.append(path)
+
+    for target in [str(k) for k in range(folds.k)] + ["all"]:
+        hard = hard_sets(objects, target)
+        name = "fold" + target if target != "all" else "all"
+        rel = os.path.join("cv", args.tag, name, "cls")
+        ckpt = os.path.join(HERE, "runs", rel, "last.pt")
+        run_stage(log, "%s classifier" % name, os.path.join(HERE, "runs", rel, ".done"),
+                  [PY, "training/train_cls.py", "--name", rel, "--init", os.path.join(SHIPPED, "glad_classifier.onnx"),
+                   "--steps", str(args.steps), "--lr", str(args.lr), "--threads", str(args.threads), "--resume",
+                   "--synth", os.path.join(cache, "ir_cls.npz"), "--hard"] + hard + ["--hard-frac", str(args.hard_frac)],
+                  [ckpt])
+        models = os.path.join(models_root, name)
+        os.makedirs(models, exist_ok=True)
+        for other in ("glad_global.onnx", "glad_local.onnx"):
+            shutil.copyfile(os.path.join(SHIPPED, other), os.path.join(models, other))
+        out = os.path.join(models, "glad_classifier.onnx")
+        run_stage(log, "%s export" % name, os.path.join(models, ".done-cls"),
+                  [PY, "training/export.py", "cls", ckpt, out], [out], inputs=[ckpt])
+    log("finished: glad-payload cv --fold-models %s" % models_root)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
