@@ -199,6 +199,45 @@ def test_primary_by_centre_and_by_operator(tmp_path):
     assert _ids_at(r) == ids  # designating a followed target keeps its id
 
 
+def test_the_primary_holds_until_another_target_is_clearly_nearer_the_centre(tmp_path):
+    # two drones about as near the centre must not swap the autopilot's target frame by frame
+    glad = _spot_glad(tmp_path, **{"detector.targets.primary": "centre"})
+    left, right = 272, 384  # centres 274 / 386: 46 and 66 px from the centre (320, 192)
+    for i in range(2):
+        r = glad.process(_spots(i, [(left, 188), (right, 188)]))
+    first = next(t for t in r.targets if t.primary)
+    assert tuple(np.round(first.target.center).astype(int)) == (274, 190)
+    sent = []
+    for i in range(2, 22):  # both drift left 4 px a frame: the right one becomes the nearer
+        left, right = left - 4, right - 4
+        r = glad.process(_spots(i, [(left, 188), (right, 188)]))
+        assert len(r.targets) == 2
+        sent.append((next(t for t in r.targets if t.primary).id, right + 2 - 320, 320 - (left + 2)))
+    # while the right one is nearer by less than 5 % of the diagonal (37 px) the left one stays primary
+    assert all(pid == first.id for pid, d_right, d_left in sent if d_left - abs(d_right) < 37)
+    # and once it is clearly nearer, the right one is sent
+    assert sent[-1][0] != first.id and sent[-1][2] - abs(sent[-1][1]) >= 37
+
+
+def test_primary_of_switches_only_past_the_margin():
+    from types import SimpleNamespace
+
+    from payload.detect.tracks import primary_of
+
+    def track(id_, x, side):
+        box = np.array([x - side / 2, 100 - side / 2, x + side / 2, 100 + side / 2], np.float32)
+        return SimpleNamespace(id=id_, designated=False, target=SimpleNamespace(xyxy=box, center=np.array([x, 100.0])))
+
+    a, b = track(1, 130, 10), track(2, 120, 12)  # image 200x200 (diagonal 283: margin 14 px); b nearer by 10 px
+    assert primary_of([a, b], "centre", (200, 200)).id == 2
+    assert primary_of([a, b], "centre", (200, 200), previous=1).id == 1
+    assert primary_of([a, track(2, 115, 12)], "centre", (200, 200), previous=1).id == 2  # nearer by 15 px
+    assert primary_of([a, b], "largest", (200, 200)).id == 2
+    assert primary_of([a, b], "largest", (200, 200), previous=1).id == 1  # 1.44x the area: not enough
+    assert primary_of([a, track(2, 120, 13)], "largest", (200, 200), previous=1).id == 2  # 1.69x
+    assert primary_of([b], "centre", (200, 200), previous=1).id == 2  # the previous one is gone
+
+
 def test_primary_largest_is_the_larger_tracked_box_whatever_its_age_and_place(tmp_path):
     low = (100, 300)  # below A: found after it (the younger target), and far from the centre
     glad = _spot_glad(tmp_path, **{"detector.targets.primary": "largest"})

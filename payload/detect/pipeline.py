@@ -101,6 +101,7 @@ class Glad:
         self.points = PointDetector()
         self.tracks: List[Track] = []  # the targets followed, oldest (lowest id) first
         self._next_id = 1
+        self._primary_id: Optional[int] = None  # last frame's primary: kept unless another is clearly better
         self._since_search = 0  # frames since the global stage last ran
         # this frame's camera motion for the local stage (one estimate for every track) and its matrix
         self._camera: Optional[CameraMotion] = None
@@ -196,6 +197,7 @@ class Glad:
     def reset(self) -> None:
         self.tracks = []
         self._next_id = 1
+        self._primary_id: Optional[int] = None  # last frame's primary: kept unless another is clearly better
         self._since_search = 0
         self.scan.reset()
         self._prev = self._prev_t_ns = None
@@ -235,7 +237,8 @@ class Glad:
         reported = [t for t in self.tracks if t.verified]
         for track in self.tracks:
             track.reported = track in reported
-        primary = primary_of(reported, self.cfg.targets.primary, frame.size_wh)
+        primary = primary_of(reported, self.cfg.targets.primary, frame.size_wh, self._primary_id)
+        self._primary_id = primary.id if primary is not None else None
         stepped = searched + started
         focus = primary if primary is not None else (stepped[0] if stepped else None)
         lock_p = float("nan")

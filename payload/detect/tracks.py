@@ -142,10 +142,19 @@ def merge_overlapping(tracks: List[Track]) -> List[Track]:
     return kept
 
 
-def primary_of(tracks: Sequence[Track], rule: str, image_wh: Tuple[int, int]) -> Optional[Track]:
+# A primary is kept until another target is clearly better: two drones about as near the centre (or
+# as large) would otherwise swap the primary from frame to frame and the autopilot would steer to
+# and fro between them.
+SWITCH_CENTRE_FRAC = 0.05  # nearer the centre by 5 % of the image diagonal
+SWITCH_AREA_RATIO = 1.5  # a box 1.5x the area
+
+
+def primary_of(tracks: Sequence[Track], rule: str, image_wh: Tuple[int, int],
+               previous: Optional[int] = None) -> Optional[Track]:
     """The reported track sent to the autopilot (``tracks`` reported, oldest first; ties keep the
     older): ``centre`` nearest the image centre, ``largest`` the largest box, ``operator`` the
-    designated one (nearest the centre while the operator has chosen none)."""
+    designated one (nearest the centre while the operator has chosen none). The track with id
+    ``previous`` (last frame's primary) stays primary unless another is clearly nearer or larger."""
     if not tracks:
         return None
     if rule == OPERATOR:
@@ -153,9 +162,16 @@ def primary_of(tracks: Sequence[Track], rule: str, image_wh: Tuple[int, int]) ->
         if chosen:
             return chosen[0]
         rule = CENTRE
+    kept = next((t for t in tracks if t.id == previous), None)
     if rule == LARGEST:
         areas = [float((t.target.xyxy[2] - t.target.xyxy[0]) * (t.target.xyxy[3] - t.target.xyxy[1])) for t in tracks]
-        return tracks[int(np.argmax(areas))]
+        best = int(np.argmax(areas))
+        if kept is not None and areas[best] < SWITCH_AREA_RATIO * areas[tracks.index(kept)]:
+            return kept
+        return tracks[best]
     cx, cy = image_wh[0] / 2.0, image_wh[1] / 2.0
     distances = [float(np.hypot(t.target.center[0] - cx, t.target.center[1] - cy)) for t in tracks]
-    return tracks[int(np.argmin(distances))]
+    best = int(np.argmin(distances))
+    if kept is not None and distances[best] > distances[tracks.index(kept)] - SWITCH_CENTRE_FRAC * float(np.hypot(*image_wh)):
+        return kept
+    return tracks[best]
