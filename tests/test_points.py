@@ -111,3 +111,22 @@ def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
     glad.models.classifier.update_config(glad.cfg.classifier.model_copy(update={"threshold": 0.5}))
     after = glad.process(_grey_spot_frame(i + 1))
     assert after.mode == "local" and not len(after.detections) and len(after.candidates) == 1
+
+
+@pytest.mark.parametrize("value, expected", [
+    ("sometimes", "detector.global.scan.points: 'sometimes' is not true or false"),
+    ("2", "detector.global.scan.points: 2 is not true or false"),
+    ("[true]", "detector.global.scan.points: [true] is not true or false"),
+])
+def test_a_bad_points_setting_is_one_line_naming_it(tmp_path, value, expected):
+    from payload.config import load_config
+    from payload.errors import ConfigError
+
+    path = tmp_path / "bad.yaml"
+    path.write_text("detector:\n  global:\n    scan:\n      points: %s\n" % value)
+    with pytest.raises(ConfigError) as info:
+        load_config(str(path))
+    assert len(info.value.problems) == 1
+    line = info.value.problems[0]
+    assert "\n" not in line and line.startswith(str(path) + ":")
+    assert line.endswith(expected), line
