@@ -19,6 +19,7 @@ from payload.capture.base import EndOfStream, FrameSource
 from payload.capture.file import ImageFolderSource, VideoFileSource
 from payload.capture.gstreamer import GStreamerSource, bgr_pipeline
 from payload.capture.paced import PacedSource
+from payload.capture.readahead import ReadAhead
 from payload.capture.v4l2 import V4L2Source
 from payload.config import CaptureConfig, Retry
 from payload.errors import SourceError
@@ -383,7 +384,7 @@ def test_missing_v4l2_device_is_one_line_error():
 def test_open_source_builds_each_kind(clip20, tmp_path):
     cv2.imwrite(str(tmp_path / "1.png"), np.zeros((4, 4, 3), np.uint8))
     src = open_source(CaptureConfig(source="file", path=clip20, loop=True))
-    assert isinstance(src, VideoFileSource) and src.loop
+    assert isinstance(src, ReadAhead) and isinstance(src.recording, VideoFileSource) and src.recording.loop
     with src:
         assert src.read().index == 0
     src = open_source(CaptureConfig(source="folder", path=str(tmp_path), pace=True, fps=10))

@@ -21,6 +21,7 @@ from payload.capture.base import EndOfStream, SourceStats
 from payload.capture.file import ImageFolderSource, VideoFileSource
 from payload.capture.live import LiveReader
 from payload.capture.paced import PacedGrabber, PacedSource
+from payload.capture.readahead import ReadAhead
 from payload.capture.synthetic import SyntheticSource
 from payload.config import CaptureConfig, Retry, SyntheticSceneConfig
 from payload.errors import SourceError
@@ -134,8 +135,10 @@ def test_paced_synthetic_scene_is_the_unpaced_scene_at_the_rate():
         assert np.array_equal(f.image, scene[f.index])
 
 
-def test_unpaced_config_gives_the_plain_reader(clip60, tmp_path):
-    assert type(open_source(CaptureConfig(source="file", path=clip60))) is VideoFileSource
+def test_unpaced_config_gives_the_unpaced_reader(clip60, tmp_path):
+    # a file or folder decoded ahead on its own thread (tests/test_readahead.py); the scene as it is
+    src = open_source(CaptureConfig(source="file", path=clip60))
+    assert type(src) is ReadAhead and type(src.recording) is VideoFileSource
     assert type(open_source(CaptureConfig(source="synthetic"))) is SyntheticSource
 
 

@@ -18,11 +18,16 @@ def open_source(cfg: CaptureConfig) -> FrameSource:
 
     ``cfg.pace`` plays a recording (file, folder, synthetic scene) as a camera at its rate
     (``cfg.fps``; the scene's own ``synthetic.fps``): payload.capture.paced wraps the unpaced reader.
+    Unpaced, a file or folder is decoded a few frames ahead on its own thread (payload.capture.readahead).
     """
     if cfg.source in ("v4l2", "gstreamer"):
         return _camera(cfg)
     recording = _recording(cfg)
     if not cfg.pace:
+        if cfg.source in ("file", "folder"):
+            from payload.capture.readahead import ReadAhead
+
+            return ReadAhead(recording)
         return recording
     from payload.capture.paced import PacedSource
 
