@@ -11,6 +11,7 @@ from payload.eval.folds import Folds  # noqa: E402
 from training.cv_cls_thermal import hard_sets  # noqa: E402
 from training.cv_train import Log, run_stage, select  # noqa: E402
 from training.mine_tracks import fold_of  # noqa: E402
+from training.train_verifier import choose  # noqa: E402
 
 NAMES = ["V_DRONE_001", "V_DRONE_031", "IR_DRONE_001", "IR_DRONE_041", "V_BIRD_001", "V_AIRPLANE_031",
          "IR_BIRD_001", "IR_HELICOPTER_021"]
@@ -39,6 +40,19 @@ def test_a_fold_is_mined_and_taught_only_by_what_never_saw_it():
     assert hard_sets(objects, "1") == ["irobj0", "irobj2"]
     assert hard_sets(objects, "0") == ["irobj1", "irobj2"]
     assert hard_sets(objects, "all") == objects
+
+
+def test_the_verifier_rule_may_cost_no_drone_group_more_than_the_limit():
+    def fold(vis_cf, thermal_cf, false_pct):
+        return {"visible drones": {"cF": vis_cf}, "thermal drones": {"cF": thermal_cf},
+                "visible negatives": {"target%": false_pct}}
+
+    rules = {"lockcheck": [fold(0.99, 0.99, 20.0)],
+             "gentle": [fold(0.96, 0.95, 4.0)],
+             # its mean loss (0.03) is within 0.05, but thermal drones lose 0.06: refused
+             "strict": [fold(0.99, 0.93, 1.0)]}
+    assert choose(rules, 0.05)["rule"] == "gentle"
+    assert choose(rules, 0.07)["rule"] == "strict"
 
 
 def _write(path, text):

@@ -4,10 +4,14 @@ The thermal negatives were in no network's training, and the lock the payload ho
 on the labelled object in 93 % of the frames (the mined locks of training/mine_tracks.py): a
 thermal bird or airliner passes the 32x32 classifier as a drone. This fine-tunes the shipped
 classifier (payload/models/glad_classifier.onnx, BatchNorm frozen) with those objects as hard
-negatives, beside its own Halmstad and thermal drone patches so that it keeps the drones:
+negatives, beside the kinds of patches it was trained on (payload/models/MODEL_CARD.md, cls5) so that
+it keeps what it knew (a first run without the synthetic and mined sets forgot the synthetic drones:
+their centre-F fell from 0.69 to 0.46 in the verifier's cross-validation):
 
   caches   build_cache.py (train + negatives_train: cls_x/cls_y), build_cache.py --name ir
-           (thermal drone patches), and per fold k build_cache.py --objects over the thermal
+           (thermal drone patches), build_synth_cache.py (synth: seeds 1000+, 4-24 px; synth2:
+           1100+, 4-14 px; 30 scenes each), mine_candidates.py (mined1: what the modules propose
+           away from the drone), and per fold k build_cache.py --objects over the thermal
            negatives clips IN fold k (irobj{k}_cls.npz: each labelled object jittered, every 2nd frame)
   fold k   train_cls.py --init glad_classifier.onnx --hard irobj{j}_cls.npz for every j != k,
            exported to OUT/fold{k}/glad_classifier.onnx beside the shipped global and local networks
@@ -18,7 +22,7 @@ each fold's thermal negatives with a classifier that never saw them. The drone s
 optimistic as the shipped networks (they saw most drone clips). Every stage is skipped once done
 and training resumes from its checkpoint (training/cv_train.py's run_stage):
 
-  nice -n 10 python training/cv_cls_thermal.py --log training/runs/cv/clsir/train.log
+  nice -n 10 python training/cv_cls_thermal.py --log training/runs/cv/clsir2/train.log
 """
 
 import argparse
@@ -45,7 +49,7 @@ def hard_sets(objects: List[str], target: str) -> List[str]:
 
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--tag", default="clsir", help="runs and models under training/runs/cv/TAG/")
+    ap.add_argument("--tag", default="clsir2", help="runs and models under training/runs/cv/TAG/")
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--lr", type=float, default=5e-4)
     ap.add_argument("--hard-frac", type=float, default=0.25)
@@ -63,6 +67,15 @@ def main(argv: Optional[List[str]] = None) -> int:
               [os.path.join(cache, f) for f in ("cls_x.npy", "cls_y.npy")])
     run_stage(log, "thermal cache", os.path.join(cache, ".done-ir"),
               [PY, "training/build_cache.py", "--split", "ir_train", "--name", "ir"], [os.path.join(cache, "ir_cls.npz")])
+    synth = os.path.join(cache, "synth_cls.npz"), os.path.join(cache, "synth2_cls.npz"), os.path.join(cache, "mined1_cls.npz")
+    run_stage(log, "synthetic patches", os.path.join(cache, ".done-synth"),
+              [PY, "training/build_synth_cache.py", "--scenes", "30"], [synth[0]])
+    run_stage(log, "synthetic small patches", os.path.join(cache, ".done-synth2"),
+              [PY, "training/build_synth_cache.py", "--name", "synth2", "--first-seed", "1100", "--scenes", "30",
+               "--target-px", "4", "14"], [synth[1]])
+    run_stage(log, "module candidates", os.path.join(cache, ".done-mined1"),
+              [PY, "training/mine_candidates.py", os.path.join(SHIPPED, "glad_local.onnx"), "--name", "mined1",
+               "--scenes", "30", "--halmstad", "train", "negatives_train"], [synth[2]])
     objects = []
     for fold in range(folds.k):
         clips = [n for n in select(names, "IR", True) if folds.fold_of(n) == fold]
@@ -80,7 +93,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         run_stage(log, "%s classifier" % name, os.path.join(HERE, "runs", rel, ".done"),
                   [PY, "training/train_cls.py", "--name", rel, "--init", os.path.join(SHIPPED, "glad_classifier.onnx"),
                    "--steps", str(args.steps), "--lr", str(args.lr), "--threads", str(args.threads), "--resume",
-                   "--synth", os.path.join(cache, "ir_cls.npz"), "--hard"] + hard + ["--hard-frac", str(args.hard_frac)],
+                   "--synth", os.path.join(cache, "ir_cls.npz"), *synth, "--hard"] + hard + ["--hard-frac", str(args.hard_frac)],
                   [ckpt])
         models = os.path.join(models_root, name)
         os.makedirs(models, exist_ok=True)

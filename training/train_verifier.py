@@ -254,19 +254,23 @@ def _mean(per_fold, groups, key):
 
 def choose(rules: Dict[str, List], max_loss: float) -> Dict:
     """The rule with the fewest frames with a false target (mean over folds of the negative groups)
-    among those whose mean centre-F over the drone groups is at most ``max_loss`` below LockCheck's."""
-    drones = [g for g in GROUPS if g.endswith("drones")]
+    among those that cost no drone group more than ``max_loss`` centre-F below LockCheck's. Per
+    group, not their mean: a mean lets one group's loss hide behind another's gain (with the tiny
+    white drones, whose centre-F barely moves, it admitted a rule costing thermal drones 0.063)."""
+    drones = [g for g in GROUPS if g.endswith("drones") and any(g in f for f in rules["lockcheck"])]
     negatives = [g for g in GROUPS if not g.endswith("drones")]
-    base_cf = _mean(rules["lockcheck"], drones, "cF")
+    base = {g: _mean(rules["lockcheck"], [g], "cF") for g in drones}
     table = []
     for name, per_fold in rules.items():
-        cf, false = _mean(per_fold, drones, "cF"), _mean(per_fold, negatives, "target%")
-        table.append(dict(rule=name, drone_cF=cf, false_target_pct=false, ok=cf >= base_cf - max_loss))
+        loss = {g: base[g] - _mean(per_fold, [g], "cF") for g in drones}
+        false = _mean(per_fold, negatives, "target%")
+        table.append(dict(rule=name, drone_cF=_mean(per_fold, drones, "cF"), worst_loss=max(loss.values()),
+                          false_target_pct=false, ok=max(loss.values()) <= max_loss))
     for row in table:
-        print("  %-36s drone cF %.3f  false targets %.2f %%%s" % (row["rule"], row["drone_cF"], row["false_target_pct"],
-                                                                  "" if row["ok"] else "  (loses too much)"))
+        print("  %-36s drone cF %.3f  worst group loses %.3f  false targets %.2f %%%s" % (
+            row["rule"], row["drone_cF"], row["worst_loss"], row["false_target_pct"], "" if row["ok"] else "  (loses too much)"))
     best = min((r for r in table if r["ok"]), key=lambda r: r["false_target_pct"])
-    return dict(best, lockcheck_drone_cF=base_cf)
+    return dict(best, lockcheck_drone_cF=_mean(rules["lockcheck"], drones, "cF"))
 
 
 def export(net, path: str) -> None:
@@ -286,7 +290,7 @@ def main():
     ap.add_argument("--min-frames", type=int, nargs="+", default=[4, 8, 12])
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
     ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
-    ap.add_argument("--max-loss", type=float, default=0.05, help="centre-F the drone groups may lose to the verifier")
+    ap.add_argument("--max-loss", type=float, default=0.05, help="centre-F each drone group may lose to the verifier")
     ap.add_argument("--export", default=None, help="also train on every clip and write this ONNX file")
     args = ap.parse_args()
     import torch
@@ -320,7 +324,7 @@ def main():
     choice = choose(report["rules"], args.max_loss)
     report["choice"] = choice
     print("\nchosen (the fewest false targets, mean over folds and negative groups, among the rules that lose at most "
-          "%.2f centre-F on the drone groups against LockCheck only): %s" % (args.max_loss, choice))
+          "%.2f centre-F on any drone group against LockCheck only): %s" % (args.max_loss, choice))
     with open(os.path.join(args.out, "cv.json"), "w") as f:
         json.dump(report, f, indent=1)
     np.savez_compressed(os.path.join(args.out, "oof_prob.npz"), **prob)

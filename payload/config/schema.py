@@ -219,7 +219,9 @@ class VerifierConfig(Section):
     model: Optional[str] = Field(None, description="ONNX file; null = the model shipped in the package.")
     # 4 / 0.7 / 0.5: of 21 rules (min_frames 4, 8, 12 x threshold 0.3-0.9, release 0.2 below), the one with
     # the fewest frames with a false target (mean of the folds' visible, thermal and synthetic drone-free
-    # negatives: 28.6 % -> 5.6 %) among those losing at most 0.05 centre-F on the drone groups (0.913 -> 0.867).
+    # negatives: 14.2 % -> 3.2 %) among those costing no drone group more than 0.05 centre-F (worst:
+    # thermal, 0.047). Locks mined with the classifier that learned the thermal negatives (cls14), each
+    # fold's by a classifier that never saw the fold (2026-12-03; the same rule as with cls5 before).
     min_frames: int = Field(4, ge=1, le=1000, description="Frames of a lock before the verifier judges it; until then it is followed, not reported.")
     threshold: float = Field(0.7, ge=0, le=1, description="Drone probability over the lock's recent frames that verifies it.")
     release_threshold: float = Field(0.5, ge=0, le=1, description="A verified lock stops being reported below this probability.")
