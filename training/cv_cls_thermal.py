@@ -17,12 +17,17 @@ their centre-F fell from 0.69 to 0.46 in the verifier's cross-validation):
            exported to OUT/fold{k}/glad_classifier.onnx beside the shipped global and local networks
   all      the same with every fold's objects: OUT/all/glad_classifier.onnx (the one that would ship)
 
+``--init`` is the classifier to start from: cls5, the one shipped before this recipe (the shipped
+file is cls14 now, which saw every fold's thermal negatives), kept in git:
+
+  git show 1361a20:payload/models/glad_classifier.onnx > training/cache/cls5.onnx
+
 so ``glad-payload cv --fold-models OUT`` and ``training/mine_tracks.py --fold-models OUT`` score
 each fold's thermal negatives with a classifier that never saw them. The drone side stays as
 optimistic as the shipped networks (they saw most drone clips). Every stage is skipped once done
 and training resumes from its checkpoint (training/cv_train.py's run_stage):
 
-  nice -n 10 python training/cv_cls_thermal.py --log training/runs/cv/clsir2/train.log
+  nice -n 10 python training/cv_cls_thermal.py --init training/cache/cls5.onnx --log training/runs/cv/clsir2/train.log
 """
 
 import argparse
@@ -50,6 +55,7 @@ def hard_sets(objects: List[str], target: str) -> List[str]:
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--tag", default="clsir2", help="runs and models under training/runs/cv/TAG/")
+    ap.add_argument("--init", required=True, help="the classifier (ONNX) to fine-tune: cls5 (see above)")
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--lr", type=float, default=5e-4)
     ap.add_argument("--hard-frac", type=float, default=0.25)
@@ -91,7 +97,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         rel = os.path.join("cv", args.tag, name, "cls")
         ckpt = os.path.join(HERE, "runs", rel, "last.pt")
         run_stage(log, "%s classifier" % name, os.path.join(HERE, "runs", rel, ".done"),
-                  [PY, "training/train_cls.py", "--name", rel, "--init", os.path.join(SHIPPED, "glad_classifier.onnx"),
+                  [PY, "training/train_cls.py", "--name", rel, "--init", args.init,
                    "--steps", str(args.steps), "--lr", str(args.lr), "--threads", str(args.threads), "--resume",
                    "--synth", os.path.join(cache, "ir_cls.npz"), *synth, "--hard"] + hard + ["--hard-frac", str(args.hard_frac)],
                   [ckpt])
