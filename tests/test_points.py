@@ -119,14 +119,10 @@ def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
     ("[true]", "detector.global.scan.points: [true] is not true or false"),
 ])
 def test_a_bad_points_setting_is_one_line_naming_it(tmp_path, value, expected):
-    from payload.config import load_config
-    from payload.errors import ConfigError
+    from test_config import problems_loading
 
-    path = tmp_path / "bad.yaml"
-    path.write_text("detector:\n  global:\n    scan:\n      points: %s\n" % value)
-    with pytest.raises(ConfigError) as info:
-        load_config(str(path))
-    assert len(info.value.problems) == 1
-    line = info.value.problems[0]
+    path, problems = problems_loading(tmp_path, "detector:\n  global:\n    scan:\n      points: %s\n" % value)
+    assert len(problems) == 1
+    line = problems[0]
     assert "\n" not in line and line.startswith(str(path) + ":")
     assert line.endswith(expected), line

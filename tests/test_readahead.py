@@ -5,10 +5,9 @@ close() stops a thread blocked on a full queue."""
 import threading
 import time
 
-import cv2
 import numpy as np
 import pytest
-from test_capture import _level, _paint_index, _painted_index  # the test clips' frame marks
+from test_capture import _level, _painted_index, _write_clip  # the test clips and their frame marks
 
 from payload.capture import open_source
 from payload.capture.base import EndOfStream, FrameSource
@@ -21,13 +20,7 @@ from payload.types import Frame
 
 @pytest.fixture(scope="module")
 def clip30(tmp_path_factory):
-    path = str(tmp_path_factory.mktemp("ahead") / "clip30.mp4")
-    writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (160, 120))
-    assert writer.isOpened(), "OpenCV cannot write mp4v here"
-    for i in range(30):
-        writer.write(_paint_index(np.full((120, 160, 3), 90, np.uint8), i))
-    writer.release()
-    return path
+    return _write_clip(tmp_path_factory.mktemp("ahead") / "clip30.mp4", 30)
 
 
 def _all(source):

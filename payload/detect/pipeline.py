@@ -197,7 +197,7 @@ class Glad:
     def reset(self) -> None:
         self.tracks = []
         self._next_id = 1
-        self._primary_id: Optional[int] = None  # last frame's primary: kept unless another is clearly better
+        self._primary_id = None
         self._since_search = 0
         self.scan.reset()
         self._prev = self._prev_t_ns = None
