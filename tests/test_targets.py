@@ -304,6 +304,34 @@ def test_global_search_every_n_frames_while_a_target_is_reported(tmp_path):
     assert ran == [True, False, False, False, False]
 
 
+def test_a_lock_never_reported_does_not_blind_the_search_with_one_target(tmp_path):
+    # a dim spot (drone probability 0.07) is locked first and never confirmed (bar 0.09) nor dropped
+    # (no hold check); a bright one (0.11) appears far away. Before, with max 1, the dim lock kept
+    # the global stage off for good and the bright one was never reported.
+    stale = {"detector.targets.max": 1, "detector.targets.search_every": 3,
+             "detector.classifier.confirm_hits": 1, "detector.classifier.confirm_threshold": 0.09}
+    dim = (A[0], A[1], 160)
+    glad = _spot_glad(tmp_path, **stale)
+    assert glad.process(_spots(0, [dim])).following
+    results = [glad.process(_spots(i, [dim, B])) for i in range(1, 6)]
+    ran = ["GAD" in r.timings_ms for r in results]
+    assert ran[:3] == [False, False, True]  # searched once the lock went 3 frames unreported
+    assert [r.target is not None for r in results] == [False, False, True, True, True]
+    assert _ids_at(results[-1]) == {2: (102, 102)} and len(glad.tracks) == 1  # the bright one took its place
+    # alone, the dim lock is followed on, and the global stage looks every 3 frames, not every frame
+    glad = _spot_glad(tmp_path, **stale)
+    ran = ["GAD" in glad.process(_spots(i, [dim])).timings_ms for i in range(8)]
+    assert ran == [True, False, False, True, False, False, True, False]
+    assert [t.id for t in glad.tracks] == [1]
+    # an operator's lock is never given up this way
+    glad = _spot_glad(tmp_path, **stale)
+    glad.process(_spots(0, [dim]))
+    glad.designate((A[0] + 2.0, A[1] + 2.0), (20.0, 20.0))
+    for i in range(1, 8):
+        glad.process(_spots(i, [dim, B]))
+    assert [t.designated for t in glad.tracks] == [True]
+
+
 def test_reload_applies_the_targets_section(tmp_path):
     glad = _spot_glad(tmp_path)
     glad.process(_spots(0, [A, B]))

@@ -23,7 +23,11 @@ on every frame while none is reported, else every ``search_every`` frames. There
 track's jump gate in the local stage) a strong (score >= T0), confirmed hit that belongs to no
 track starts a new one; while there is no room a local one retargets its track as above. Tracks
 that come to overlap are merged (the older id stays). Of the reported targets the ``primary``
-rule picks the one sent to the autopilot. With ``max`` 1 this is the single-target GLAD exactly.
+rule picks the one sent to the autopilot. With ``max`` 1 this is the single-target GLAD, but for
+one thing: a lock followed ``search_every`` frames in a row without being reported (a speck the
+classifier neither confirms nor drops) does not blind the search. While every place is held and one
+such stale lock is among them, the global stage runs every ``search_every`` frames, and a strong,
+confirmed hit that belongs to no track takes the stalest one's place.
 """
 
 import logging
@@ -237,6 +241,7 @@ class Glad:
         reported = [t for t in self.tracks if t.verified]
         for track in self.tracks:
             track.reported = track in reported
+            track.unreported = 0 if track.reported else track.unreported + 1
         primary = primary_of(reported, self.cfg.targets.primary, frame.size_wh, self._primary_id)
         self._primary_id = primary.id if primary is not None else None
         stepped = searched + started
@@ -258,12 +263,13 @@ class Glad:
 
     def _search_due(self) -> bool:
         """Whether the global stage runs this frame: always while no target is followed locally;
-        with room for another target, every frame while none is reported, else every search_every."""
+        with room for another target, every frame while none is reported, else every search_every;
+        with none, every search_every while a stale lock could give its place."""
         if not self.tracks:
             return True
         t = self.cfg.targets
         if len(self.tracks) >= t.max:
-            return False
+            return self._since_search + 1 >= t.search_every and self._stalest() is not None
         if not any(track.reported for track in self.tracks):
             return True
         return self._since_search + 1 >= t.search_every
@@ -329,11 +335,16 @@ class Glad:
         when no target is followed, the others only if they belong to no track."""
         started = []
         for i in range(len(hits)):
-            if len(self.tracks) >= self.cfg.targets.max:
-                break
             hit = hits[i:i + 1]
             if self.tracks and not len(self._new_targets(hit, self.tracks)):
                 continue
+            if len(self.tracks) >= self.cfg.targets.max:
+                stale = self._stalest()
+                if stale is None:
+                    break
+                log.info("frame=%d target %d followed %d frames unreported gives its place to a new hit",
+                         frame.index, stale.id, stale.unreported)
+                self.tracks.remove(stale)
             track = self._new_track()
             track.target = self._acquire(track, frame, hit, timings)
             track.detections = hit
@@ -341,6 +352,12 @@ class Glad:
             self.tracks.append(track)
             started.append(track)
         return started
+
+    def _stalest(self) -> Optional[Track]:
+        """The track longest followed without being reported, if that is search_every frames or
+        more (ties: the oldest); None when no track is stale."""
+        stale = [t for t in self.tracks if t.stale(self.cfg.targets.search_every)]
+        return max(stale, key=lambda t: (t.unreported, -t.id)) if stale else None
 
     def _start_far(self, frame: Frame, found_far: List[Detections], timings: Dict[str, float]) -> List[Track]:
         """New tracks on the local stage's strong, confirmed hits beyond every track's gate."""

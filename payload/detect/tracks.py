@@ -49,6 +49,7 @@ class Track:
         self.verifier = LockVerifier(verifier_model, v.min_frames, v.threshold, v.release_threshold, v.enabled)
         self.designated = False  # an operator's lock: no retarget may take it
         self.reported = False  # whether the last frame reported it
+        self.unreported = 0  # frames in a row it was followed without being reported
         self.begin_frame()
 
     def begin_frame(self) -> None:
@@ -81,6 +82,7 @@ class Track:
         self.region.start(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
         self.lock.reset()
         self.verifier.reset()
+        self.unreported = 0
         self.observed = best
 
     def designate(self, center_xy: Tuple[float, float], size_wh: Tuple[float, float]) -> None:
@@ -97,6 +99,12 @@ class Track:
         if self.target is not None:
             return self.target.xyxy
         return self.region.predicted_box() if self.region.active else None
+
+    def stale(self, frames: int) -> bool:
+        """Whether it has been followed ``frames`` frames in a row without being reported (and is
+        not the operator's): a lock neither confirmed nor dropped, which may give its place to a
+        new hit (GLAD's global stage)."""
+        return not self.designated and self.unreported >= frames
 
     @property
     def verified(self) -> bool:
