@@ -19,15 +19,34 @@ _RING_PX = 25  # the neighbourhood a spot must stand alone in
 _HOLE_PX = 9  # ... not counting itself
 
 
+def ring_max(response: np.ndarray) -> np.ndarray:
+    """The largest value in the _RING_PX square ring (a _HOLE_PX hole) around each pixel, pixels
+    beyond the image left out (``response`` >= 0, at least _RING_PX on each side). The same as
+    ``cv2.dilate`` with the ring as its kernel, at a third of the cost: OpenCV dilates with a
+    rectangle row by row and column by column, with any other shape pixel by pixel, so the ring
+    is four rectangles (above, below, left, right of the hole), each band shifted into place."""
+    r, h = _RING_PX // 2, _HOLE_PX // 2
+    band, s = r - h, h + 1  # each band is 8 px deep and starts 5 px from the centre
+    pad = cv2.copyMakeBorder(response, r, r, r, r, cv2.BORDER_CONSTANT, value=0)
+    across = cv2.dilate(pad, np.ones((1, _RING_PX), np.uint8))  # dx in [-12, 12]
+    up = cv2.dilate(across, np.ones((band, 1), np.uint8), anchor=(0, band - 1))  # dy in [-7, 0]
+    down = cv2.dilate(across, np.ones((band, 1), np.uint8), anchor=(0, 0))  # dy in [0, 7]
+    left = cv2.dilate(pad, np.ones((1, band), np.uint8), anchor=(band - 1, 0))  # dx in [-7, 0]
+    right = cv2.dilate(pad, np.ones((1, band), np.uint8), anchor=(0, 0))  # dx in [0, 7]
+    hh, ww = response.shape
+    rows, cols = slice(r, r + hh), slice(r, r + ww)
+    above_below = np.maximum(up[r - s:r - s + hh, cols], down[r + s:r + s + hh, cols])
+    sides = cv2.dilate(np.maximum(left[:, r - s:r - s + ww], right[:, r + s:r + s + ww]),
+                       np.ones((_HOLE_PX, 1), np.uint8))  # dy in [-4, 4]
+    return np.maximum(above_below, sides[rows])
+
+
 class PointDetector:
     """``detect(image, offset_xy, module)`` -> Detections of isolated spots, strongest first."""
 
     def __init__(self, kernel_px: int = 11, min_contrast: float = 8.0, min_isolation: float = 1.5,
                  max_points: int = 8) -> None:
         self.kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (kernel_px, kernel_px))
-        self.ring = np.ones((_RING_PX, _RING_PX), np.uint8)
-        lo = (_RING_PX - _HOLE_PX) // 2
-        self.ring[lo:lo + _HOLE_PX, lo:lo + _HOLE_PX] = 0
         self.min_contrast, self.min_isolation = float(min_contrast), float(min_isolation)
         self.max_points = int(max_points)
 
@@ -39,20 +58,23 @@ class PointDetector:
         response = np.maximum(cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, self.kernel),
                               cv2.morphologyEx(grey, cv2.MORPH_BLACKHAT, self.kernel)).astype(np.float32)
         # +4 grey levels: a faint spot on a perfectly flat patch is not infinitely isolated
-        isolation = response / (cv2.dilate(response, self.ring) + 4.0)
+        isolation = response / (ring_max(response) + 4.0)
         spots = ((response >= self.min_contrast) & (isolation >= self.min_isolation)).astype(np.uint8)
-        n, _, stats, _ = cv2.connectedComponentsWithStats(spots, connectivity=8)
-        if n <= 1:
-            return Detections.empty()
+        # the 8-connected spots' outer borders (the top level of RETR_CCOMP, a spot inside another's
+        # hole included): on a few spots far cheaper than labelling every pixel
+        contours, hierarchy = cv2.findContours(spots, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)[-2:]
+        outer = [c for c, link in zip(contours, hierarchy[0]) if link[3] < 0] if contours else []
+        outer.sort(key=lambda c: (int(c[0, 0, 1]), int(c[0, 0, 0])))  # raster order of the first pixel
         boxes, scores = [], []
-        for x, y, w, h, _area in stats[1:]:
+        for contour in outer:
+            x, y, w, h = cv2.boundingRect(contour)
             if w > self.kernel.shape[1] or h > self.kernel.shape[0]:
                 continue  # larger than a spot: not this detector's object
             boxes.append((x - 1, y - 1, x + w + 1, y + h + 1))
             scores.append(float(isolation[y:y + h, x:x + w].max()))
         if not boxes:
             return Detections.empty()
-        order = np.argsort(-np.asarray(scores))[: self.max_points]
+        order = np.argsort(-np.asarray(scores), kind="stable")[: self.max_points]
         xyxy = np.asarray(boxes, np.float32)[order] + np.float32([offset_xy[0], offset_xy[1]] * 2)
         # score: the isolation mapped into (0, 1) so that it ranks beside network scores
         score = 1.0 - 1.0 / np.asarray(scores, np.float32)[order]
