@@ -235,9 +235,12 @@ def _tiny_spot_frame(index, size_wh=(1280, 768), xy=(1000, 600), side=4):
 @pytest.mark.parametrize("tiles_per_frame, found", [(2, True), (0, False)])
 def test_scan_finds_a_drone_the_down_scaled_global_detector_cannot_see(tmp_path, tiles_per_frame, found):
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
-                                   "detector.global.scan.tiles_per_frame": tiles_per_frame})
+                                   "detector.global.scan.tiles_per_frame": tiles_per_frame,
+                                   "detector.global.scan.points": False})  # the network's look (spots: test_points)
     results = []
-    for i in range(8):  # 1280x768 in 320 px tiles: 15 tiles, all seen in 8 frames at 2 a frame
+    # 1280x768 in 320 px tiles: 15 tiles, all seen in 8 scans at 2 a frame; GAD and the scan take
+    # turns (global motion off), so within 16 frames
+    for i in range(16):
         results.append(glad.process(_tiny_spot_frame(i)))
         if len(results[-1].detections):
             break
@@ -249,6 +252,20 @@ def test_scan_finds_a_drone_the_down_scaled_global_detector_cannot_see(tmp_path,
         assert hit.xyxy[0].tolist() == [1000, 600, 1004, 604]
         assert "scan" in results[-1].timings_ms
         assert glad.process(_tiny_spot_frame(len(results))).mode == "local"  # followed at native resolution
+
+
+@pytest.mark.parametrize("size_wh, turns", [((1280, 768), True), ((640, 512), False)])
+def test_on_a_strongly_down_scaled_frame_the_global_looks_take_turns(tmp_path, size_wh, turns):
+    # issue 19: GAD, GMD and the scan in one 1080p frame cost ~45 ms; where GAD down-scales the frame
+    # strongly they run one a global frame, in turn; elsewhere (no scan) GAD and then GMD as before
+    glad = _spot_glad(tmp_path, **{"detector.global.motion.enabled": True})
+    black = [_tiny_spot_frame(i, size_wh=size_wh, xy=(0, 0), side=0) for i in range(7)]
+    timings = [glad.process(f).timings_ms for f in black]
+    ran = [[m for m in ("GAD", "GMD", "scan") if m in t] for t in timings]
+    if turns:  # (the first frame has no previous one for GMD)
+        assert ran == [["GAD"], ["GMD"], ["scan"], ["GAD"], ["GMD"], ["scan"], ["GAD"]]
+    else:
+        assert ran == [["GAD"]] + [["GAD", "GMD"]] * 6
 
 
 @pytest.mark.parametrize("max_input_scale, scanned", [(0.5, False), (1.0, True)])
@@ -269,7 +286,7 @@ def test_a_scan_hit_must_convince_the_classifier_as_a_lock_must(tmp_path, confir
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": ["GAD"], "detector.classifier.lock_hits": 0,
                                    "detector.classifier.threshold": 0.05,
                                    "detector.classifier.confirm_threshold": confirm_threshold})
-    results = [glad.process(_tiny_spot_frame(i)) for i in range(8)]
+    results = [glad.process(_tiny_spot_frame(i)) for i in range(16)]  # the scan every other global frame: all 15 tiles in 16
     assert any(len(r.detections) for r in results) == found
     assert any(len(r.candidates) for r in results)  # the scan saw it either way
 

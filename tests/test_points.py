@@ -93,7 +93,7 @@ def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points
                                    "detector.global.scan.tiles_per_frame": 2, "detector.global.scan.points": points,
                                    "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it either
                                    "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    results = [glad.process(_grey_spot_frame(i)) for i in range(12)]  # 15 tiles: all seen in 8 frames
+    results = [glad.process(_grey_spot_frame(i)) for i in range(20)]  # 15 tiles: 8 scans, GAD's turn between
     hits = [r for r in results if len(r.detections)]
     if not points:
         assert not hits and all(len(r.candidates) == 0 for r in results)  # the network never sees it
@@ -105,6 +105,25 @@ def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points
     assert after and all(r.mode == "local" and len(r.detections) for r in after)  # followed by the spot cue
     assert all("points" in r.timings_ms for r in after)
     assert all(np.allclose(r.target.xyxy, [999, 599, 1005, 605], atol=3) for r in after)
+
+
+def test_the_spot_cue_covers_twice_the_networks_tiles(tmp_path):
+    # issue 19: the scan's network runs on tiles_per_frame tiles, the spot cue (a quarter of its cost
+    # a tile) on twice as many, in its own turn: the spot is reached in half the scans
+    from test_pipeline import _spot_glad
+
+    from payload.boxes import tiles_xyxy
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.tiles_per_frame": 1,
+                                   "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+    tiles = tiles_xyxy((1280, 768), (320, 320))
+    k = next(i for i, (x1, y1, x2, y2) in enumerate(tiles) if x1 <= 1000 and 1004 <= x2 and y1 <= 600 and 604 <= y2)
+    assert k >= 8  # far down the turn: the network alone would reach it on scan k + 1
+    first = next(i for i in range(40) if len(glad.process(_grey_spot_frame(i)).detections))
+    # GAD and the scan take turns (global motion off): scan n (from 1) is frame 2n - 1
+    assert first == 2 * (k // 2 + 1) - 1
 
 
 def test_no_spots_where_the_global_input_keeps_most_of_the_resolution(tmp_path):
@@ -124,7 +143,7 @@ def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
     i = 0
     while not len(glad.process(_grey_spot_frame(i)).detections):
         i += 1
-        assert i < 12
+        assert i < 20  # 15 tiles: 8 scans, GAD's turn between
     # the brightness classifier gives this dim patch well under 0.5
     glad.models.classifier.update_config(glad.cfg.classifier.model_copy(update={"threshold": 0.5}))
     after = glad.process(_grey_spot_frame(i + 1))

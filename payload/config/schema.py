@@ -169,8 +169,12 @@ class ScanConfig(Section):
     # 0.680 with 4 tiles a frame, 0.700 with 6 (scan after GMD, hits at T0 and classifier 0.8). 4: a frame
     # spent searching costs ~8 ms more (6: ~13 ms); the whole 1080p frame (32 tiles) is seen every 8 frames.
     # Halmstad val (640x512, input scale 0.75) scanned on every frame fell from F 0.830 to 0.809: max_input_scale.
+    # 2 since the global looks take turns at 1080p (issue 19): the scan is then a frame's whole search, and 2
+    # network tiles with the spot cue on 4 (~12 ms with the live video on) keep it within 15 ms. Synthetic
+    # 100-109 F 0.592 as with 3 or 4; tiny-light centre recall 0.260 (0.140 with the spots on 2 tiles only):
+    # docs/results.md.
     tiles_per_frame: int = Field(
-        4, ge=0, le=1000,
+        2, ge=0, le=1000,
         description="Native-resolution tiles the local appearance detector searches per global frame, in turn; 0 = off.",
     )
     max_input_scale: float = Field(
@@ -180,7 +184,7 @@ class ScanConfig(Section):
     points: bool = Field(
         True,
         description="On scanned frames, also propose isolated 2-8 px spots of either polarity (payload.detect.points): "
-                    "on the scan's tiles, and in the search region when LAD and LMD find nothing.",
+                    "on twice the scan's tiles, and in the search region when LAD and LMD find nothing.",
     )
 
 

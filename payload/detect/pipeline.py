@@ -2,10 +2,11 @@
 
 Per frame, chosen by each target's switcher:
 - global: appearance (GAD) on the down-scaled full frame; only if it finds nothing, motion
-  (GMD) on the full frame, its candidates checked by the 32x32 classifier; if that finds
-  nothing either on a frame GAD down-scales strongly (1080p), GAD's look at native
-  resolution: the local detector on a few tiles of the frame in turn (payload.detect.scan),
-  and isolated 2-8 px spots on the same tiles (payload.detect.points);
+  (GMD) on the full frame, its candidates checked by the 32x32 classifier. On a frame GAD
+  down-scales strongly (1080p) there is a third look, GAD's at native resolution: the local
+  detector on a few tiles of the frame in turn (payload.detect.scan), and isolated 2-8 px spots
+  on twice as many (payload.detect.points); there the three looks take turns, one a global
+  frame, so that a searching frame costs what one look costs (issue 19's time budget);
 - local: appearance (LAD) inside the target's search region at native resolution; only if it
   finds nothing, motion (LMD) inside the region, checked by the classifier; on frames the scan
   searches, then isolated spots in the region, checked by the classifier.
@@ -47,6 +48,9 @@ from payload.detect.scan import NativeScan
 from payload.detect.switcher import GLOBAL, LOCAL
 from payload.detect.tracks import Track, TrackedTarget, is_far, merge_overlapping, overlap, primary_of
 from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
+
+SCAN = "scan"  # the global stage's third look (payload.detect.scan)
+SPOT_TILES_PER_TILE = 2  # the scan's spot cue (payload.detect.points) covers this many tiles per network tile
 
 log = logging.getLogger(__name__)
 
@@ -102,11 +106,13 @@ class Glad:
         self.gmd = MotionDetector(cfg.global_.motion, GMD)
         self.lmd = MotionDetector(cfg.local.motion, LMD)
         self.scan = NativeScan()
+        self.spot_scan = NativeScan()
         self.points = PointDetector()
         self.tracks: List[Track] = []  # the targets followed, oldest (lowest id) first
         self._next_id = 1
         self._primary_id: Optional[int] = None  # last frame's primary: kept unless another is clearly better
         self._since_search = 0  # frames since the global stage last ran
+        self._turn = -1  # the global look whose turn it was last (payload.detect.pipeline._spread)
         # this frame's camera motion for the local stage (one estimate for every track) and its matrix
         self._camera: Optional[CameraMotion] = None
         self._homography: Optional[np.ndarray] = None
@@ -203,7 +209,9 @@ class Glad:
         self._next_id = 1
         self._primary_id = None
         self._since_search = 0
+        self._turn = -1
         self.scan.reset()
+        self.spot_scan.reset()
         self._prev = self._prev_t_ns = None
 
     # --- the per-frame step -------------------------------------------------------------
@@ -303,14 +311,23 @@ class Glad:
 
         found = Detections.empty()
         gad = self.models.global_appearance
-        if gad is not None and self.cfg.global_.appearance.enabled:
-            found = keep(self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates))
         prev = self._prev
-        if not len(found) and self.cfg.global_.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
+        looks = []
+        if gad is not None and self.cfg.global_.appearance.enabled:
+            looks.append(GAD)
+        if self.cfg.global_.motion.enabled and prev is not None and prev.full.shape == grey.full.shape:
+            looks.append(GMD)
+        if GAD in looks and self._scan_available(frame):
+            looks.append(SCAN)
+        if self._scanned(frame) and len(looks) > 1:
+            looks = self._spread(looks)
+        if GAD in looks:
+            found = keep(self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates))
+        if not len(found) and GMD in looks:
             t = time.perf_counter()
             camera = self.ego_motion.estimate(prev, grey, fine=True)
             found = keep(self._motion(self.gmd, frame.image, prev.full, grey.full, camera, (0, 0), t, timings, candidates))
-        if not len(found) and gad is not None and self.cfg.global_.appearance.enabled:
+        if not len(found) and SCAN in looks:
             scanned = self._scan(frame, timings)
             candidates.append(scanned)
             # Four native-resolution tiles a frame meet many more birds than GAD's down-scaled
@@ -322,6 +339,14 @@ class Glad:
         started = self._start(frame, found.sorted_by_score(), timings)
         _add(timings, "switcher", _ms(t))
         return started
+
+    def _spread(self, looks: List[str]) -> List[str]:
+        """The one look this global frame takes on a frame GAD down-scales strongly (1080p): GAD,
+        GMD and the scan in turn. All three in one frame cost ~45 ms there, beyond a 30 FPS camera's
+        33 ms; one a frame stays near the dearest one's ~15 ms. On synthetic 1080p scenes it found
+        as much as all three (docs/results.md)."""
+        self._turn = (self._turn + 1) % len(looks)
+        return [looks[self._turn]]
 
     def _new_targets(self, found: Detections, tracks: List[Track]) -> Detections:
         """The hits that could start another target beside ``tracks``: strong (score >= T0, the
@@ -456,7 +481,7 @@ class Glad:
         """Native-resolution hits on this frame's scan tiles (payload.detect.scan), as GAD hits.
         Off without a local appearance detector, and on frames GAD's input hardly down-scales."""
         lad, scan = self.models.local_appearance, self.cfg.global_.scan
-        if lad is None or not self.cfg.local.appearance.enabled or not scan.tiles_per_frame or not self._scanned(frame):
+        if not self._scan_available(frame):
             return Detections.empty()
         t = time.perf_counter()
         tiles = self.scan.next_tiles(frame.size_wh, lad.input_wh, scan.tiles_per_frame)
@@ -464,11 +489,18 @@ class Glad:
         found = Detections.concat(parts)
         found = found[found.score >= self.cfg.global_.appearance.confidence]  # T0: these are GAD hits
         if scan.points:
+            # the spot cue costs a quarter of the network a tile, so it covers twice the tiles, in its
+            # own turn: on the tiny-light scenes recall follows its coverage (docs/results.md)
+            tiles = self.spot_scan.next_tiles(frame.size_wh, lad.input_wh, SPOT_TILES_PER_TILE * scan.tiles_per_frame)
             spots = Detections.concat([self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(float(x1), float(y1)))
                                        for x1, y1, x2, y2 in tiles])
             found = Detections.concat([found, _outside(spots, found)])  # where the network hit, its box stands
         timings["scan"] = _ms(t)
         return Detections(found.xyxy, found.score, np.full(len(found), GAD, "<U3"))
+
+    def _scan_available(self, frame: Frame) -> bool:
+        return (self.models.local_appearance is not None and self.cfg.local.appearance.enabled
+                and bool(self.cfg.global_.scan.tiles_per_frame) and self._scanned(frame))
 
     def _scanned(self, frame: Frame) -> bool:
         """Whether GAD's input down-scales this frame enough to need the native-resolution looks."""

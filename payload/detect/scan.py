@@ -6,7 +6,7 @@ background. A small drone that hovers, or flies with the background, is then nev
 The scan runs the local (native-resolution) appearance detector on ``tiles_per_frame`` of the
 overlapping tiles that cover the frame (payload.detect.tiled), the next ones each global frame,
 so the whole frame is seen at native resolution every ceil(K / tiles_per_frame) global frames
-(1080p with 320 px tiles: 32 tiles, 8 frames at 4 a frame) for four local detector runs a frame.
+(1080p with 320 px tiles: 32 tiles, 16 scans at 2 a frame) for two local detector runs a scan.
 Frames the global input already holds at nearly native resolution are not scanned.
 """
 
