@@ -323,6 +323,21 @@ def test_a_lock_never_reported_does_not_blind_the_search_with_one_target(tmp_pat
     ran = ["GAD" in glad.process(_spots(i, [dim])).timings_ms for i in range(8)]
     assert ran == [True, False, False, True, False, False, True, False]
     assert [t.id for t in glad.tracks] == [1]
+    # a lock the classifier confirmed but the verifier holds back (verifier = the classifier's verdict,
+    # 0.07 < 0.5) is not stale: no search, no place given (on val these were the drones themselves)
+    from onnx_factories import last_row_verifier
+
+    from payload.detect.verify import FEATURES
+
+    glad = _spot_glad(tmp_path, **{**stale, "detector.classifier.confirm_threshold": 0.05,
+                                   "detector.verifier.enabled": True, "detector.verifier.threshold": 0.5,
+                                   "detector.verifier.release_threshold": 0.5, "detector.verifier.min_frames": 1,
+                                   "detector.verifier.model": last_row_verifier(tmp_path / "v.onnx",
+                                                                                FEATURES.index("drone_p"))})
+    glad.process(_spots(0, [dim]))
+    results = [glad.process(_spots(i, [dim, B])) for i in range(1, 8)]
+    assert not any("GAD" in r.timings_ms for r in results) and not any(r.targets for r in results)
+    assert [t.id for t in glad.tracks] == [1] and glad.tracks[0].lock.confirmed
     # an operator's lock is never given up this way
     glad = _spot_glad(tmp_path, **stale)
     glad.process(_spots(0, [dim]))

@@ -25,10 +25,10 @@ track's jump gate in the local stage) a strong (score >= T0), confirmed hit that
 track starts a new one; while there is no room a local one retargets its track as above. Tracks
 that come to overlap are merged (the older id stays). Of the reported targets the ``primary``
 rule picks the one sent to the autopilot. With ``max`` 1 this is the single-target GLAD, but for
-one thing: a lock followed ``search_every`` frames in a row without being reported (a speck the
-classifier neither confirms nor drops) does not blind the search. While every place is held and one
-such stale lock is among them, the global stage runs every ``search_every`` frames, and a strong,
-confirmed hit that belongs to no track takes the stalest one's place.
+one thing: a lock the classifier has neither confirmed nor dropped in ``search_every`` frames (a
+speck) does not blind the search. While every place is held and such a stale lock is among them,
+the global stage runs every ``search_every`` frames, and a strong, confirmed hit that belongs to no
+track takes the stalest one's place.
 """
 
 import logging
@@ -379,8 +379,8 @@ class Glad:
         return started
 
     def _stalest(self) -> Optional[Track]:
-        """The track longest followed without being reported, if that is search_every frames or
-        more (ties: the oldest); None when no track is stale."""
+        """The stale track (Track.stale) longest followed without being reported (ties: the
+        oldest); None when no track is stale."""
         stale = [t for t in self.tracks if t.stale(self.cfg.targets.search_every)]
         return max(stale, key=lambda t: (t.unreported, -t.id)) if stale else None
 

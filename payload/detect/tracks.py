@@ -101,10 +101,11 @@ class Track:
         return self.region.predicted_box() if self.region.active else None
 
     def stale(self, frames: int) -> bool:
-        """Whether it has been followed ``frames`` frames in a row without being reported (and is
-        not the operator's): a lock neither confirmed nor dropped, which may give its place to a
-        new hit (GLAD's global stage)."""
-        return not self.designated and self.unreported >= frames
+        """Whether the classifier has neither confirmed nor dropped it in ``frames`` frames of being
+        followed (and it is not the operator's): it may give its place to a new hit (GLAD's global
+        stage). A confirmed lock the verifier still holds back is not stale: on val those were the
+        drones themselves, and giving their place cost synthetic F (docs/results.md)."""
+        return not self.designated and not self.lock.confirmed and self.unreported >= frames
 
     @property
     def verified(self) -> bool:
