@@ -318,6 +318,11 @@ def test_a_lock_never_reported_does_not_blind_the_search_with_one_target(tmp_pat
     assert ran[:3] == [False, False, True]  # searched once the lock went 3 frames unreported
     assert [r.target is not None for r in results] == [False, False, True, True, True]
     assert _ids_at(results[-1]) == {2: (102, 102)} and len(glad.tracks) == 1  # the bright one took its place
+    # stale only once LockCheck has judged it over its whole window (lock_hits 6 > search_every 3)
+    glad = _spot_glad(tmp_path, **{**stale, "detector.classifier.lock_hits": 6, "detector.classifier.lock_threshold": 0.01})
+    glad.process(_spots(0, [dim]))
+    ran = ["GAD" in glad.process(_spots(i, [dim, B])).timings_ms for i in range(1, 8)]
+    assert ran == [False, False, False, False, False, True, False]
     # alone, the dim lock is followed on, and the global stage looks every 3 frames, not every frame
     glad = _spot_glad(tmp_path, **stale)
     ran = ["GAD" in glad.process(_spots(i, [dim])).timings_ms for i in range(8)]

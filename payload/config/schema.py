@@ -279,7 +279,7 @@ class TargetsConfig(Section):
     # into view waits at most this many frames for it.
     search_every: int = Field(
         5, ge=1, le=10000,
-        description="While a target is reported (and max > 1), the global stage looks for more every N frames; it runs every frame while none is. A lock the classifier neither confirms nor drops in N frames may give its place to a new hit.")
+        description="While a target is reported (and max > 1), the global stage looks for more every N frames; it runs every frame while none is. A lock the classifier neither confirms nor drops in max(N, classifier.lock_hits) frames may give its place to a new hit.")
 
 
 class DetectorConfig(Section):

@@ -25,8 +25,8 @@ track's jump gate in the local stage) a strong (score >= T0), confirmed hit that
 track starts a new one; while there is no room a local one retargets its track as above. Tracks
 that come to overlap are merged (the older id stays). Of the reported targets the ``primary``
 rule picks the one sent to the autopilot. With ``max`` 1 this is the single-target GLAD, but for
-one thing: a lock the classifier has neither confirmed nor dropped in ``search_every`` frames (a
-speck) does not blind the search. While every place is held and such a stale lock is among them,
+one thing: a lock the classifier has neither confirmed nor dropped over LockCheck's window
+(``lock_hits`` frames, at least ``search_every``; a speck) does not blind the search. While every place is held and such a stale lock is among them,
 the global stage runs every ``search_every`` frames, and a strong, confirmed hit that belongs to no
 track takes the stalest one's place.
 """
@@ -378,10 +378,17 @@ class Glad:
             started.append(track)
         return started
 
+    def _stale_after(self) -> int:
+        """Frames a lock may go unconfirmed before it is stale: LockCheck's whole window (lock_hits),
+        at least search_every. Stale after 5, a false lock on tests/test_glad_synthetic.py's seed 11
+        gave its place to the next false hit, and that to the next, where LockCheck would have
+        dropped the first after its 10 hits and the search would have run every frame (F 0.94 -> 0.77)."""
+        return max(self.cfg.classifier.lock_hits, self.cfg.targets.search_every)
+
     def _stalest(self) -> Optional[Track]:
         """The stale track (Track.stale) longest followed without being reported (ties: the
         oldest); None when no track is stale."""
-        stale = [t for t in self.tracks if t.stale(self.cfg.targets.search_every)]
+        stale = [t for t in self.tracks if t.stale(self._stale_after())]
         return max(stale, key=lambda t: (t.unreported, -t.id)) if stale else None
 
     def _start_far(self, frame: Frame, found_far: List[Detections], timings: Dict[str, float]) -> List[Track]:
@@ -470,7 +477,9 @@ class Glad:
                                   measured=False, region_xyxy=region)
         track.detections = best
         mode_next = track.switcher.after(hit=bool(len(best)))
-        if mode_next == GLOBAL and not len(best):
+        if not len(best) and (mode_next == GLOBAL or not overlap(track.target.xyxy, np.float32([0, 0, *frame.size_wh]))):
+            # lost; or predicted wholly out of the picture: it has left the view (coasting on, its
+            # prediction ran to y = 4,000 px on a 1080p scene and blinded the search meanwhile)
             track.region.reset()
             track.target = None
         _add(timings, "switcher", _ms(t))
