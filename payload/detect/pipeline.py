@@ -477,9 +477,11 @@ class Glad:
                                   measured=False, region_xyxy=region)
         track.detections = best
         mode_next = track.switcher.after(hit=bool(len(best)))
-        if not len(best) and (mode_next == GLOBAL or not overlap(track.target.xyxy, np.float32([0, 0, *frame.size_wh]))):
-            # lost; or predicted wholly out of the picture: it has left the view (coasting on, its
-            # prediction ran to y = 4,000 px on a 1080p scene and blinded the search meanwhile)
+        gone = not track.designated and not overlap(track.target.xyxy, np.float32([0, 0, *frame.size_wh]))
+        if not len(best) and (mode_next == GLOBAL or gone):
+            # lost; or an automatic lock predicted wholly out of the picture: it has left the view
+            # (coasting on, its prediction ran to y = 4,000 px on a 1080p scene and blinded the
+            # search meanwhile). The operator's lock ends as the switcher or the operator decides.
             track.region.reset()
             track.target = None
         _add(timings, "switcher", _ms(t))
