@@ -41,15 +41,10 @@ def test_a_target_predicted_out_of_the_picture_ends_there(tmp_path):
     # a spot runs out at the right edge, 16 px a frame: coasting on, the search region's prediction
     # ran along the border and up to y = -328 and was reported as the target for the switcher's ten
     # misses; a bearing from a box wholly outside the image is no bearing
-    from payload.types import Frame
-
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0})
     for i in range(14):
-        image = np.zeros((384, 640, 3), np.uint8)
         x = 544 + 16 * i
-        if x + 4 <= 640:
-            image[200:204, x:x + 4] = 255
-        r = glad.process(Frame(image, i, i * 33_000_000, 0))
+        r = glad.process(_tiny_spot_frame(i, size_wh=(640, 384), xy=(x, 200), side=4 if x + 4 <= 640 else 0))
         if x + 4 <= 640:
             assert r.target is not None and r.target.measured
         else:  # gone: the prediction (x 640..644) is wholly outside: no target, back to the global stage

@@ -26,9 +26,9 @@ track starts a new one; while there is no room a local one retargets its track a
 that come to overlap are merged (the older id stays). Of the reported targets the ``primary``
 rule picks the one sent to the autopilot. With ``max`` 1 this is the single-target GLAD, but for
 one thing: a lock the classifier has neither confirmed nor dropped over LockCheck's window
-(``lock_hits`` frames, at least ``search_every``; a speck) does not blind the search. While every place is held and such a stale lock is among them,
-the global stage runs every ``search_every`` frames, and a strong, confirmed hit that belongs to no
-track takes the stalest one's place.
+(``lock_hits`` frames, at least ``search_every``; a speck) does not blind the search. While every
+place is held and such a stale lock is among them, the global stage runs every ``search_every``
+frames, and a strong, confirmed hit that belongs to no track takes the stalest one's place.
 """
 
 import logging
@@ -272,7 +272,7 @@ class Glad:
     def _search_due(self) -> bool:
         """Whether the global stage runs this frame: always while no target is followed locally;
         with room for another target, every frame while none is reported, else every search_every;
-        with none, every search_every while a stale lock could give its place."""
+        with no room, every search_every while a stale lock could give its place."""
         if not self.tracks:
             return True
         t = self.cfg.targets
@@ -330,7 +330,7 @@ class Glad:
         if not len(found) and SCAN in looks:
             scanned = self._scan(frame, timings)
             candidates.append(scanned)
-            # Four native-resolution tiles a frame meet many more birds than GAD's down-scaled
+            # Native-resolution tiles meet many more birds than GAD's down-scaled
             # look: where GAD hits are checked, a scan hit must convince the classifier as much
             # as a lock must to be reported (a synthetic gull at 0.51 took the demo's lock).
             found = keep(self._classify(frame.image, scanned, timings, threshold=max(
