@@ -154,6 +154,22 @@ def test_lock_check_judges_the_mean_of_the_last_hits():
     assert lock.add(0.0) is True  # off
 
 
+def test_an_unconfirmed_lock_the_classifier_rejects_is_dropped_early():
+    from payload.detect.classifier import LockCheck
+
+    # the shipped settings: hold judged on 10 hits at 0.15, confirmed by 2 hits averaging 0.8
+    lock = LockCheck(hits=10, threshold=0.15, confirm_hits=2, confirm_threshold=0.8)
+    # the global hit's crop convinced the classifier; the local hits on the same object do not
+    assert [lock.add(p) for p in (0.99, 0.0, 0.1, 0.0, 0.0)] == [True, True, True, True, False]
+    lock.reset()
+    assert [lock.add(p) for p in (0.0, 0.0, 0.3, 0.3)] == [True, True, True, True]  # mean 0.15: kept
+    lock.reset()
+    # a confirmed lock keeps the whole window: a drone the classifier doubts while it turns
+    assert [lock.add(p) for p in (0.9, 0.9)] == [True, True] and lock.confirmed
+    assert all(lock.add(0.0) for _ in range(8))  # 10 hits, mean 0.18; unconfirmed it ended at the 4th 0.0
+    assert lock.add(0.0) is False  # the last 10: 0.09
+
+
 @pytest.mark.parametrize("smoothing, expected_wh", [(1.0, (4.0, 4.0)), (0.5, (7.0, 5.0))])
 def test_local_box_reports_the_tracked_size(tmp_path, smoothing, expected_wh):
     # the spot detector's boxes are 4x4 px; the target's tracked size is set to 10x6 px after the
