@@ -94,3 +94,29 @@ def test_a_failed_stage_stops_the_driver_and_leaves_no_marker(tmp_path):
     assert not (tmp_path / ".done").exists()
     text = (tmp_path / "log.txt").read_text()
     assert "bad: FAILED with exit status 3" in text and "silent: FAILED: no " in text
+
+
+def test_the_shipped_verifier_is_its_members_averaged_and_loads_as_one(tmp_path):
+    import numpy as np
+    import torch
+
+    from payload.detect.onnx_model import OnnxModel
+    from payload.detect.verify import N_FEATURES, LockVerifier
+    from training.train_verifier import WINDOW, build_net, ensemble, export
+
+    torch.manual_seed(0)
+    members = [build_net(np.zeros(N_FEATURES, np.float32), np.ones(N_FEATURES, np.float32)).eval() for _ in range(3)]
+    net = ensemble(members)
+    x = torch.rand(5, WINDOW, N_FEATURES)
+    x[:, :, 0] = 1.0
+    with torch.no_grad():
+        each = torch.stack([m(x) for m in members])
+        assert each.std(0).max() > 1e-4  # the members differ, so the mean is a real test
+        assert torch.allclose(net(x), each.mean(0), atol=1e-6)
+    path = str(tmp_path / "verifier.onnx")
+    export(net, path)
+    verifier = LockVerifier(OnnxModel(path, expected_inputs={"tracks": (None, None, N_FEATURES)}), min_frames=1,
+                            threshold=0.5, release_threshold=0.3)
+    for row in x[0].numpy():
+        verifier.add(row)
+    assert abs(verifier.probability - float(each.mean(0)[0, 0])) < 1e-4

@@ -134,6 +134,26 @@ def build_net(mean: np.ndarray, std: np.ndarray):
     return Verifier()
 
 
+def ensemble(nets):
+    """One network that answers the mean of ``nets``' probabilities (what ships)."""
+    from torch import nn
+
+    class Ensemble(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.members = nn.ModuleList(nets)
+
+        def forward(self, tracks):
+            return sum(net(tracks) for net in self.members) / len(self.members)
+
+    return Ensemble().eval()
+
+
+def train_members(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, members: int):
+    """``members`` networks, each from its own seed (initialisation and draws), as one."""
+    return ensemble([train(x, y, w, steps, seed + 1000 * m, log_every=0) for m in range(members)])
+
+
 def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, log_every: int = 500):
     import torch
 
@@ -287,6 +307,8 @@ def main():
     ap.add_argument("--out", default="training/runs/verifier")
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--members", type=int, default=5,
+                    help="networks averaged (one verifier's threshold swung its false targets by a third between seeds)")
     ap.add_argument("--min-frames", type=int, nargs="+", default=[4, 8, 12])
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
     ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
@@ -306,12 +328,12 @@ def main():
         train_clips = [c for c in clips if c["fold"] != fold]
         x, y, w = examples(train_clips)
         print("fold %d: %d examples (%d drone)" % (fold, len(y), int(y.sum())), flush=True)
-        net = train(x, y, w, args.steps, args.seed + fold)
+        net = train_members(x, y, w, args.steps, args.seed + fold, args.members)
         for c in clips:
             if c["fold"] == fold:
                 prob[c["name"]] = predict(net, c["windows"])
     folds = [[c for c in clips if c["fold"] == f] for f in range(k)]
-    report = {"features": list(FEATURES), "window": WINDOW, "steps": args.steps, "rules": {}}
+    report = {"features": list(FEATURES), "window": WINDOW, "steps": args.steps, "members": args.members, "rules": {}}
     base = [score(fc, {c["name"]: replay(c, None, 0, 0, 0, use_verifier=False) for c in fc}) for fc in folds]
     print("\nLockCheck only (what GLAD reports today):\n" + fmt(base))
     report["rules"]["lockcheck"] = base
@@ -330,7 +352,7 @@ def main():
     np.savez_compressed(os.path.join(args.out, "oof_prob.npz"), **prob)
     if args.export:
         x, y, w = examples(clips)
-        net = train(x, y, w, args.steps, args.seed + 100)
+        net = train_members(x, y, w, args.steps, args.seed + 100, args.members)
         export(net, args.export)
         print("wrote %s" % args.export)
     print("done in %.0f s" % (time.time() - t0))
