@@ -41,6 +41,7 @@ from payload.errors import SourceError
 from payload.geometry import BearingModel, GeoModel
 from payload.offline import recording_config
 from payload.step import FrameStep
+from payload.types import Frame
 
 log = logging.getLogger(__name__)
 
@@ -288,9 +289,25 @@ def open_watched_stream(cfg: Config):
     if uri.startswith("rtsp:"):  # a ground station on another machine: receive only, decode nothing here
         client = Gst.parse_launch("rtspsrc location=%s latency=0 ! fakesink sync=false" % uri)
         client.set_state(Gst.State.PLAYING)
-        deadline = time.monotonic() + _LINK_WAIT_S
-        while video.stream.feed is None and time.monotonic() < deadline:
-            time.sleep(0.02)
+        # The server prepares the media (and answers the client's DESCRIBE, then SETUP and PLAY)
+        # only once frames arrive: until the client holds a session, blank frames are fed, or on a
+        # loaded host the measured passes ran, encoding nothing, before it connected.
+        d = video.description
+        blank = np.zeros((d.height, d.width, 3), np.uint8)
+        deadline, i = time.monotonic() + 2 * _LINK_WAIT_S, 0
+        while (video.stream.feed is None or video.stream.clients < 1) and time.monotonic() < deadline:
+            video.submit(Frame(blank, i, time.monotonic_ns(), 0), None, "searching")
+            i += 1
+            time.sleep(0.05)
+        # ... and settled, so that the measured passes' counts (taken against video.stats() now) hold none of them
+        settled, last = time.monotonic() + _LINK_WAIT_S, None
+        while time.monotonic() < settled:
+            st = video.stats()
+            now = (st.submitted, st.dropped + st.streamed + st.faults)
+            if now == last and now[0] == now[1]:
+                break
+            last = now
+            time.sleep(0.1)
     return (video, client), ""
 
 
@@ -324,6 +341,7 @@ def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frame
                     stream_text = "not measured: " + why
                 else:
                     video, client = watched
+                    before = video.stats()  # the blank frames that brought the client in
                     try:
                         for video_on in (video, None, video):
                             (on if video_on else off_again).append(
@@ -332,7 +350,8 @@ def run_bench(cfg: Config, source: str, runner, runner_name: str = "glad", frame
                         d = video.description
                         stream_text = "%s %dx%d %g fps %d kbit/s %s, %d client(s)" % (
                             d.uri, d.width, d.height, d.fps, d.bitrate_kbps, d.encoder, st.clients)
-                        stream_frames, stream_dropped = st.streamed, st.dropped + st.stream_dropped
+                        stream_frames = st.streamed - before.streamed
+                        stream_dropped = st.dropped + st.stream_dropped - before.dropped - before.stream_dropped
                     finally:
                         if client is not None:
                             from payload.video.gst import import_gst
