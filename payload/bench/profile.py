@@ -299,15 +299,19 @@ def open_watched_stream(cfg: Config):
             video.submit(Frame(blank, i, time.monotonic_ns(), 0), None, "searching")
             i += 1
             time.sleep(0.05)
-        # ... and settled, so that the measured passes' counts (taken against video.stats() now) hold none of them
-        settled, last = time.monotonic() + _LINK_WAIT_S, None
-        while time.monotonic() < settled:
+        # ... and settled, so that the measured passes' counts (taken against video.stats() then)
+        # hold none of them: no counter has moved for two frame periods of the video thread. (A
+        # frame taken while no client watched is counted nowhere, so the counters never add up.)
+        quiet_s = max(0.2, 2.0 / vcfg.video.fps)
+        deadline, last, since = time.monotonic() + _LINK_WAIT_S, None, time.monotonic()
+        while time.monotonic() < deadline:
             st = video.stats()
-            now = (st.submitted, st.dropped + st.streamed + st.faults)
-            if now == last and now[0] == now[1]:
+            now = (st.submitted, st.dropped, st.streamed, st.stream_dropped, st.faults)
+            if now != last:
+                last, since = now, time.monotonic()
+            elif time.monotonic() - since >= quiet_s:
                 break
-            last = now
-            time.sleep(0.1)
+            time.sleep(0.05)
     return (video, client), ""
 
 

@@ -109,7 +109,7 @@ class LockCheck:
         if not self.hits:
             return True
         self._probs.append(p)
-        if not self.confirmed and len(self._probs) >= self.EARLY_HITS > 0:
+        if not self.confirmed and len(self._probs) >= self.EARLY_HITS:
             if float(np.mean(list(self._probs)[-self.EARLY_HITS:])) < self.threshold:
                 return False
         return len(self._probs) < self.hits or float(np.mean(self._probs)) >= self.threshold
