@@ -120,3 +120,40 @@ def test_the_shipped_verifier_is_its_members_averaged_and_loads_as_one(tmp_path)
     for row in x[0].numpy():
         verifier.add(row)
     assert abs(verifier.probability - float(each.mean(0)[0, 0])) < 1e-4
+
+
+def test_a_verifier_exported_for_a_longer_window_is_run_on_that_window(tmp_path):
+    import numpy as np
+    import torch
+
+    from payload.detect.onnx_model import OnnxModel
+    from payload.detect.verify import N_FEATURES, LockVerifier
+    from training.train_verifier import build_net, export
+
+    torch.manual_seed(0)
+    net = build_net(np.zeros(N_FEATURES, np.float32), np.ones(N_FEATURES, np.float32)).eval()
+    path = str(tmp_path / "verifier32.onnx")
+    export(net, path, 32)
+    verifier = LockVerifier(OnnxModel(path, expected_inputs={"tracks": (None, None, N_FEATURES)}), min_frames=1,
+                            threshold=0.5, release_threshold=0.3)
+    assert verifier.window == 32
+    rows = torch.rand(40, N_FEATURES)
+    rows[:, 0] = 1.0
+    for row in rows.numpy():
+        verifier.add(row)
+    with torch.no_grad():
+        want = float(net(rows[-32:][None])[0, 0])  # the last 32 rows, the oldest 8 gone
+    assert abs(verifier.probability - want) < 1e-4
+
+
+@pytest.mark.parametrize("flag, value, expected", [("--members", "0", "--members 0: expected at least 1 network"),
+                                                   ("--window", "3", "--window 3: expected at least 4")])
+def test_train_verifier_refuses_a_bad_count_in_one_line(tmp_path, flag, value, expected):
+    import subprocess
+
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.run([sys.executable, os.path.join(repo, "training", "train_verifier.py"), "--tracks", str(tmp_path),
+                           "--out", str(tmp_path / "out"), flag, value], capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert proc.stderr.strip().startswith(expected) and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1

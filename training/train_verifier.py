@@ -43,7 +43,7 @@ def group_of(name: str) -> str:
     return "%s %s" % (sensor, "drones" if "_DRONE_" in name else "negatives")
 
 
-def load(tracks_dir: str) -> List[Dict]:
+def load(tracks_dir: str, window: int = WINDOW) -> List[Dict]:
     folds = load_folds()
     clips = []
     for path in sorted(glob.glob(os.path.join(tracks_dir, "*.npz"))):
@@ -54,7 +54,7 @@ def load(tracks_dir: str) -> List[Dict]:
             c = {k: z[k] for k in z.files}
         c["name"], c["group"], c["fold"] = name, group_of(name), fold_of(folds, name)
         c["label"] = frame_labels(c)
-        c["windows"] = windows(c["rows"], c["lock"])
+        c["windows"] = windows(c["rows"], c["lock"], window)
         clips.append(c)
     return clips
 
@@ -172,8 +172,9 @@ def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, lo
         idx = torch.from_numpy(rng.choice(len(x), 256, p=p))
         xb = xt[idx]
         # drop the oldest frames at random: the verifier must judge young locks too
-        keep = torch.from_numpy(rng.integers(4, WINDOW + 1, size=len(idx)))
-        mask = (torch.arange(WINDOW)[None, :] >= (WINDOW - keep)[:, None]).float()[:, :, None]
+        window = xb.shape[1]
+        keep = torch.from_numpy(rng.integers(4, window + 1, size=len(idx)))
+        mask = (torch.arange(window)[None, :] >= (window - keep)[:, None]).float()[:, :, None]
         xb = xb * mask
         out = net(xb).squeeze(1)
         loss = torch.nn.functional.binary_cross_entropy(out.clamp(1e-6, 1 - 1e-6), yt[idx])
@@ -293,10 +294,11 @@ def choose(rules: Dict[str, List], max_loss: float) -> Dict:
     return dict(best, lockcheck_drone_cF=_mean(rules["lockcheck"], drones, "cF"))
 
 
-def export(net, path: str) -> None:
+def export(net, path: str, window: int = WINDOW) -> None:
+    """The ONNX file GLAD loads; its input's T is the window the verifier keeps at run time."""
     import torch
 
-    dummy = torch.zeros(1, WINDOW, N_FEATURES)
+    dummy = torch.zeros(1, window, N_FEATURES)
     torch.onnx.export(net, dummy, path, input_names=["tracks"], output_names=["drone_p"], opset_version=17,
                       dynamic_axes={"tracks": {0: "n"}, "drone_p": {0: "n"}}, dynamo=False)
 
@@ -309,6 +311,7 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--members", type=int, default=1,
                     help="networks averaged: 5 cut the CV's false targets but failed the issue-3 gate (notebook, session 15)")
+    ap.add_argument("--window", type=int, default=WINDOW, help="frames of a lock the network sees (the last T)")
     ap.add_argument("--min-frames", type=int, nargs="+", default=[4, 8, 12])
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
     ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
@@ -320,7 +323,11 @@ def main():
     torch.set_num_threads(1)
     os.makedirs(args.out, exist_ok=True)
     t0 = time.time()
-    clips = load(args.tracks)
+    if args.members < 1:
+        raise SystemExit("--members %d: expected at least 1 network" % args.members)
+    if args.window < 4:
+        raise SystemExit("--window %d: expected at least 4 (a lock is judged from its 4th frame)" % args.window)
+    clips = load(args.tracks, args.window)
     print("clips %d, lock frames %d (%.0f s)" % (len(clips), sum(len(c["rows"]) for c in clips), time.time() - t0))
     k = max(c["fold"] for c in clips) + 1
     prob = {}
@@ -333,7 +340,7 @@ def main():
             if c["fold"] == fold:
                 prob[c["name"]] = predict(net, c["windows"])
     folds = [[c for c in clips if c["fold"] == f] for f in range(k)]
-    report = {"features": list(FEATURES), "window": WINDOW, "steps": args.steps, "members": args.members, "rules": {}}
+    report = {"features": list(FEATURES), "window": args.window, "steps": args.steps, "members": args.members, "rules": {}}
     base = [score(fc, {c["name"]: replay(c, None, 0, 0, 0, use_verifier=False) for c in fc}) for fc in folds]
     print("\nLockCheck only (what GLAD reports today):\n" + fmt(base))
     report["rules"]["lockcheck"] = base
@@ -353,7 +360,7 @@ def main():
     if args.export:
         x, y, w = examples(clips)
         net = train_members(x, y, w, args.steps, args.seed + 100, args.members)
-        export(net, args.export)
+        export(net, args.export, args.window)
         print("wrote %s" % args.export)
     print("done in %.0f s" % (time.time() - t0))
 
