@@ -1,0 +1,31 @@
+"""bench/drone_free.py: the drone-free scenes' false-target count, and a broken config refused in one line."""
+
+import os
+import re
+import subprocess
+import sys
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCRIPT = os.path.join(REPO, "bench", "drone_free.py")
+
+
+def run(*args):
+    return subprocess.run([sys.executable, SCRIPT, *args], capture_output=True, text=True, timeout=300, cwd=REPO)
+
+
+def test_counts_every_frame_of_every_seed():
+    proc = run("--seeds", "6100-6101", "--frames", "6")
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert [re.match(r"seed (\d+): a target in (\d+) of 6 frames", x).group(1) for x in lines[:2]] == ["6100", "6101"]
+    hits = sum(int(re.match(r"seed \d+: a target in (\d+)", x).group(1)) for x in lines[:2])
+    assert lines[2].startswith("drone-free scenes 6100-6101: a false target in %d of 12 frames" % hits)
+
+
+def test_a_broken_config_is_one_line_naming_the_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("detector: {verifier: {threshold: 7}}\n")
+    proc = run("--config", str(bad), "--seeds", "6100", "--frames", "2")
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert str(bad) in proc.stderr and "threshold" in proc.stderr
