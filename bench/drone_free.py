@@ -6,7 +6,7 @@ the camera turning, no drone rendered), so "a target reported" is a false target
 Prints per seed the frames with a target, then the share over all of them.
 
     python bench/drone_free.py                 # seeds 6100-6107 (mining uses 6000-6095)
-    python bench/drone_free.py --seeds 6100-6199 --config my.yaml
+    python bench/drone_free.py --first-seed 6100 --scenes 100 --config my.yaml
 """
 
 import argparse
@@ -15,7 +15,6 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from payload.cli import _seeds  # noqa: E402
 from payload.config import Config, load_config  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
 from payload.errors import ConfigError  # noqa: E402
@@ -25,10 +24,15 @@ from payload.types import Frame  # noqa: E402
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", type=_seeds, default=list(range(6100, 6108)), help="scene seeds, e.g. 6100-6107")
+    ap.add_argument("--first-seed", type=int, default=6100, help="the first scene's seed (mining uses 6000-6095)")
+    ap.add_argument("--scenes", type=int, default=8, help="scenes: seeds FIRST .. FIRST + SCENES - 1")
     ap.add_argument("--frames", type=int, default=150, help="frames per scene")
     ap.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
     args = ap.parse_args()
+    if args.first_seed < 0 or args.scenes < 1 or args.frames < 1:
+        raise SystemExit("--first-seed %d --scenes %d --frames %d: expected a seed >= 0 and at least 1 scene and 1 frame"
+                         % (args.first_seed, args.scenes, args.frames))
+    args.seeds = list(range(args.first_seed, args.first_seed + args.scenes))
     try:
         cfg = load_config(args.config) if args.config else Config()
     except ConfigError as exc:

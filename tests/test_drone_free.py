@@ -14,7 +14,7 @@ def run(*args):
 
 
 def test_counts_every_frame_of_every_seed():
-    proc = run("--seeds", "6100-6101", "--frames", "6")
+    proc = run("--first-seed", "6100", "--scenes", "2", "--frames", "6")
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.strip().splitlines()
     assert [re.match(r"seed (\d+): a target in (\d+) of 6 frames", x).group(1) for x in lines[:2]] == ["6100", "6101"]
@@ -25,7 +25,7 @@ def test_counts_every_frame_of_every_seed():
 def test_a_broken_config_is_one_line_naming_the_file(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("detector: {verifier: {threshold: 7}}\n")
-    proc = run("--config", str(bad), "--seeds", "6100", "--frames", "2")
+    proc = run("--config", str(bad), "--scenes", "1", "--frames", "2")
     assert proc.returncode != 0
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert str(bad) in proc.stderr and "threshold" in proc.stderr
