@@ -18,8 +18,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.config import Config, load_config  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
 from payload.errors import ConfigError  # noqa: E402
-from payload.synth.scene import Scene  # noqa: E402
 from payload.types import Frame  # noqa: E402
+from training.mine_tracks import synthetic_scene  # noqa: E402
 
 
 def main() -> int:
@@ -32,21 +32,23 @@ def main() -> int:
     if args.first_seed < 0 or args.scenes < 1 or args.frames < 1:
         raise SystemExit("--first-seed %d --scenes %d --frames %d: expected a seed >= 0 and at least 1 scene and 1 frame"
                          % (args.first_seed, args.scenes, args.frames))
-    args.seeds = list(range(args.first_seed, args.first_seed + args.scenes))
+    seeds = range(args.first_seed, args.first_seed + args.scenes)
     try:
         cfg = load_config(args.config) if args.config else Config()
     except ConfigError as exc:
         raise SystemExit(str(exc)) from None
-    total = hits = 0
-    for seed in args.seeds:
+    hits = 0
+    for seed in seeds:
         glad = Glad(cfg.detector)
+        scene = synthetic_scene(seed, args.frames, with_drone=False)
         n = 0
-        for sf in Scene(seed=seed, frames=args.frames, target_px=(4.0, 40.0), cars=8, render_target=False):
-            n += len(glad.process(Frame(sf.image, sf.index, int(sf.index * 1e9 / 30), 0)).detections) > 0
+        for sf in scene:
+            n += len(glad.process(Frame(sf.image, sf.index, int(sf.index * 1e9 / scene.fps), 0)).detections) > 0
         print("seed %d: a target in %d of %d frames" % (seed, n, args.frames), flush=True)
-        total, hits = total + args.frames, hits + n
+        hits += n
+    total = len(seeds) * args.frames
     print("drone-free scenes %d-%d: a false target in %d of %d frames (%.1f %%)"
-          % (args.seeds[0], args.seeds[-1], hits, total, 100.0 * hits / max(1, total)))
+          % (seeds[0], seeds[-1], hits, total, 100.0 * hits / total))
     return 0
 
 

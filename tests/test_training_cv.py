@@ -157,3 +157,4 @@ def test_train_verifier_refuses_a_bad_count_in_one_line(tmp_path, flag, value, e
     assert proc.returncode != 0
     assert proc.stderr.strip().startswith(expected) and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()  # refused before anything is written

@@ -108,6 +108,12 @@ def scene_frames(scene):
                                    else np.asarray(sf.target_xyxy, np.float32)[None])
 
 
+def synthetic_scene(seed: int, frames: int, with_drone: bool) -> Scene:
+    """A SYN_DRONE (4-40 px drone, 3 cars) or SYN_EMPTY (no drone, 8 cars) scene; bench/drone_free.py
+    counts false targets on the drone-free kind."""
+    return Scene(seed=seed, frames=frames, target_px=(4.0, 40.0), cars=3 if with_drone else 8, render_target=with_drone)
+
+
 def jobs(args):
     out = []
     if not args.synthetic_only:
@@ -116,9 +122,7 @@ def jobs(args):
     for k in range(args.synthetic):
         for seed, with_drone in ((SYNTH_DRONE_SEED + k, True), (SYNTH_EMPTY_SEED + k, False)):
             def frames(seed=seed, with_drone=with_drone):
-                scene = Scene(seed=seed, frames=args.scene_frames, target_px=(4.0, 40.0), cars=3 if with_drone else 8,
-                              render_target=with_drone)
-                return scene_frames(scene)
+                return scene_frames(synthetic_scene(seed, args.scene_frames, with_drone))
             out.append(("SYN_%s_%d" % ("DRONE" if with_drone else "EMPTY", seed), frames))
     for k in range(args.tiny_light):
         def frames(seed=SYNTH_LIGHT_SEED + k):

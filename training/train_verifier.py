@@ -320,13 +320,13 @@ def main():
     args = ap.parse_args()
     import torch
 
-    torch.set_num_threads(1)
-    os.makedirs(args.out, exist_ok=True)
-    t0 = time.time()
     if args.members < 1:
         raise SystemExit("--members %d: expected at least 1 network" % args.members)
     if args.window < 4:
         raise SystemExit("--window %d: expected at least 4 (a lock is judged from its 4th frame)" % args.window)
+    torch.set_num_threads(1)
+    os.makedirs(args.out, exist_ok=True)
+    t0 = time.time()
     clips = load(args.tracks, args.window)
     print("clips %d, lock frames %d (%.0f s)" % (len(clips), sum(len(c["rows"]) for c in clips), time.time() - t0))
     k = max(c["fold"] for c in clips) + 1
