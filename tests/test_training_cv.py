@@ -128,21 +128,22 @@ def test_a_verifier_exported_for_a_longer_window_is_run_on_that_window(tmp_path)
 
     from payload.detect.onnx_model import OnnxModel
     from payload.detect.verify import N_FEATURES, LockVerifier
-    from training.train_verifier import build_net, export
+    from training.train_verifier import WINDOW, build_net, export
 
+    window = WINDOW + 16  # not the default, so the export must carry it
     torch.manual_seed(0)
     net = build_net(np.zeros(N_FEATURES, np.float32), np.ones(N_FEATURES, np.float32)).eval()
-    path = str(tmp_path / "verifier32.onnx")
-    export(net, path, 32)
+    path = str(tmp_path / "verifier_long.onnx")
+    export(net, path, window)
     verifier = LockVerifier(OnnxModel(path, expected_inputs={"tracks": (None, None, N_FEATURES)}), min_frames=1,
                             threshold=0.5, release_threshold=0.3)
-    assert verifier.window == 32
-    rows = torch.rand(40, N_FEATURES)
+    assert verifier.window == window
+    rows = torch.rand(window + 8, N_FEATURES)
     rows[:, 0] = 1.0
     for row in rows.numpy():
         verifier.add(row)
     with torch.no_grad():
-        want = float(net(rows[-32:][None])[0, 0])  # the last 32 rows, the oldest 8 gone
+        want = float(net(rows[-window:][None])[0, 0])  # the last ``window`` rows, the oldest 8 gone
     assert abs(verifier.probability - want) < 1e-4
 
 

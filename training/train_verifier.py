@@ -29,7 +29,7 @@ from payload.detect.verify import FEATURES, N_FEATURES  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from training.mine_tracks import fold_of  # noqa: E402
 
-WINDOW = 16
+WINDOW = 32  # the shipped verifier's T (16 until 2026-12-04: docs/results.md)
 GROUPS = ("visible drones", "thermal drones", "visible negatives", "thermal negatives", "synthetic drones",
           "tiny light drones", "synthetic empty")
 
@@ -309,8 +309,8 @@ def main():
     ap.add_argument("--out", default="training/runs/verifier")
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--members", type=int, default=1,
-                    help="networks averaged: 5 cut the CV's false targets but failed the issue-3 gate (notebook, session 15)")
+    ap.add_argument("--members", type=int, default=5,
+                    help="networks averaged (the shipped verifier's 5: docs/results.md, 2026-12-04)")
     ap.add_argument("--window", type=int, default=WINDOW, help="frames of a lock the network sees (the last T)")
     ap.add_argument("--min-frames", type=int, nargs="+", default=[4, 8, 12])
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
@@ -318,12 +318,12 @@ def main():
     ap.add_argument("--max-loss", type=float, default=0.05, help="centre-F each drone group may lose to the verifier")
     ap.add_argument("--export", default=None, help="also train on every clip and write this ONNX file")
     args = ap.parse_args()
-    import torch
-
     if args.members < 1:
         raise SystemExit("--members %d: expected at least 1 network" % args.members)
     if args.window < 4:
         raise SystemExit("--window %d: expected at least 4 (a lock is judged from its 4th frame)" % args.window)
+    import torch
+
     torch.set_num_threads(1)
     os.makedirs(args.out, exist_ok=True)
     t0 = time.time()
