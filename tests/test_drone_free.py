@@ -5,6 +5,8 @@ import re
 import subprocess
 import sys
 
+import pytest
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPT = os.path.join(REPO, "bench", "drone_free.py")
 
@@ -29,3 +31,12 @@ def test_a_broken_config_is_one_line_naming_the_file(tmp_path):
     assert proc.returncode != 0
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert str(bad) in proc.stderr and "threshold" in proc.stderr
+
+
+@pytest.mark.parametrize("args", [("--scenes", "0"), ("--frames", "0"), ("--first-seed", "-1")])
+def test_a_count_with_nothing_to_run_is_refused_in_one_line(args):
+    # --scenes 0 or --frames 0 would divide by zero frames; a negative seed is no scene
+    proc = run(*args)
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert args[0] in proc.stderr and "expected" in proc.stderr
