@@ -29,16 +29,31 @@ def detector(model, input_wh, confidence=0.5, module="GAD"):
     [((1280, 768), (640, 384), (0.5, 0.5)), ((640, 512), (640, 384), (0.75, 0.75)), ((200, 150), (320, 320), (1, 1))],
 )
 def test_letterbox_scales_down_only_and_round_trips(image_wh, input_wh, scale_xy):
-    image = np.full((image_wh[1], image_wh[0], 3), 7, np.uint8)
-    canvas, box = letterbox(image, input_wh)
-    assert canvas.shape == (input_wh[1], input_wh[0], 3)
+    image = np.zeros((image_wh[1], image_wh[0], 3), np.uint8)
+    image[..., 0], image[..., 1], image[..., 2] = 7, 70, 200  # blue, green, red
+    out = np.full((1, 3, input_wh[1], input_wh[0]), -1.0, np.float32)  # a reused buffer: every pixel rewritten
+    blob, box = letterbox(image, input_wh, out=out)
+    assert blob is out and blob.shape == (1, 3, input_wh[1], input_wh[0]) and blob.dtype == np.float32
     assert min(box.scale_xy) == pytest.approx(min(scale_xy), abs=2e-3)
-    # the image lands top-left, the rest is grey padding
+    # the image lands top-left as RGB in [0, 1], the rest is grey padding
     new_w, new_h = round(image_wh[0] * box.scale_xy[0]), round(image_wh[1] * box.scale_xy[1])
-    assert (canvas[:new_h, :new_w] == 7).all()
-    assert (canvas[new_h:] == 114).all() and (canvas[:, new_w:] == 114).all()
+    for channel, value in enumerate((200, 70, 7)):
+        plane = blob[0, channel]
+        assert np.allclose(plane[:new_h, :new_w], value / 255.0, rtol=0, atol=1e-6)
+        assert np.allclose(plane[new_h:], 114 / 255.0, rtol=0, atol=1e-6)
+        assert np.allclose(plane[:, new_w:], 114 / 255.0, rtol=0, atol=1e-6)
     xyxy = np.array([[10.0, 20.0, 50.0, 44.0]], np.float32)
     assert np.allclose(box.to_image(box.to_input(xyxy)), xyxy, atol=1e-3)
+
+
+def test_letterbox_is_the_network_input_the_detectors_were_trained_on():
+    # RGB in [0, 1] of the INTER_AREA down-scale, padded with 114: bit for bit what
+    # cv2.dnn.blobFromImage made of the padded uint8 image before the input was written in place
+    image = np.random.default_rng(0).integers(0, 256, (1080, 1920, 3), dtype=np.uint8)
+    blob, _ = letterbox(image, (640, 384))
+    canvas = np.full((384, 640, 3), 114, np.uint8)
+    canvas[:360] = cv2.resize(image, (640, 360), interpolation=cv2.INTER_AREA)
+    assert np.array_equal(blob, cv2.dnn.blobFromImage(canvas, 1.0 / 255.0, swapRB=True))
 
 
 def test_box_maps_back_through_downscale_non_square_input_and_offset(spot_model):

@@ -53,8 +53,9 @@ def test_strongest_first_and_at_most_max_points():
     assert min(c[1] for c in _centres(found)) >= 20 + 15 * 6  # the five brightest (last) spots
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])  # the detector's response is uint8
 @pytest.mark.parametrize("shape", [(320, 320), (25, 25), (25, 61), (90, 33)])
-def test_ring_max_is_the_dilation_by_the_ring(shape):
+def test_ring_max_is_the_dilation_by_the_ring(shape, dtype):
     # the four-band shortcut must give exactly what the ring kernel gives, to the image's edges
     import cv2
 
@@ -62,10 +63,10 @@ def test_ring_max_is_the_dilation_by_the_ring(shape):
     lo = (_RING_PX - _HOLE_PX) // 2
     ring[lo:lo + _HOLE_PX, lo:lo + _HOLE_PX] = 0
     rng = np.random.default_rng(sum(shape))
-    response = (rng.random(shape) * 60).astype(np.float32)
+    response = (rng.random(shape) * 60).astype(dtype)
     response[rng.random(shape) < 0.8] = 0  # sparse, as top-hat responses are
     assert np.array_equal(ring_max(response), cv2.dilate(response, ring))
-    one = np.zeros(shape, np.float32)
+    one = np.zeros(shape, dtype)
     one[shape[0] // 2, shape[1] // 2] = 9.0  # a lone peak: not in its own ring, in its neighbours'
     out = ring_max(one)
     assert out[shape[0] // 2, shape[1] // 2] == 0 and out.max() == 9.0

@@ -12,7 +12,7 @@ offset inside the cell (cells), 3-4 = box width, height in input pixels.
 
 import logging
 from dataclasses import dataclass
-from typing import Tuple
+from typing import Optional, Tuple
 
 import cv2
 import numpy as np
@@ -26,6 +26,7 @@ from payload.types import Detections
 log = logging.getLogger(__name__)
 
 PAD_VALUE = 114
+_UNIT = np.float32(1.0 / 255.0)
 MAX_CANDIDATES = 100  # peaks kept (by score) before NMS; a frame holds a handful of drones at most
 
 
@@ -50,23 +51,27 @@ class Letterbox:
         return np.asarray(xyxy_image, np.float32).reshape(-1, 4) * np.array([sx, sy, sx, sy], np.float32)
 
 
-def letterbox(image_bgr: np.ndarray, input_wh: Tuple[int, int]) -> Tuple[np.ndarray, Letterbox]:
-    """Fit the image into input_wh (down-scale only), pad grey; returns the BGR input image and the mapping."""
+def letterbox(image_bgr: np.ndarray, input_wh: Tuple[int, int],
+              out: Optional[np.ndarray] = None) -> Tuple[np.ndarray, Letterbox]:
+    """The network's input for the image: fitted into input_wh (down-scale only), grey padding right
+    and bottom, as [1, 3, H, W] float32 RGB in [0, 1] (written into ``out`` when given, that shape);
+    and the mapping back to the image."""
     h, w = image_bgr.shape[:2]
     in_w, in_h = int(input_wh[0]), int(input_wh[1])
     scale = min(in_w / float(w), in_h / float(h), 1.0)
     new_w, new_h = min(in_w, max(1, int(round(w * scale)))), min(in_h, max(1, int(round(h * scale))))
     if (new_w, new_h) != (w, h):
         image_bgr = cv2.resize(image_bgr, (new_w, new_h), interpolation=cv2.INTER_AREA)
-    canvas = np.full((in_h, in_w, 3), PAD_VALUE, np.uint8)
-    canvas[:new_h, :new_w] = image_bgr
-    return canvas, Letterbox((new_w / float(w), new_h / float(h)), (int(w), int(h)), (in_w, in_h))
-
-
-def to_input(canvas_bgr: np.ndarray) -> np.ndarray:
-    """BGR uint8 HxWx3 -> [1, 3, H, W] float32 RGB in [0, 1]."""
-    # One OpenCV pass (swap, scale, NCHW); bit-identical to the NumPy form, ~2.5x faster.
-    return cv2.dnn.blobFromImage(canvas_bgr, 1.0 / 255.0, swapRB=True)
+    # Each channel scaled straight into its plane of a buffer the detector keeps: no padded uint8
+    # copy, no interleaved pass, no fresh 3 MB a frame (cv2.dnn.blobFromImage on a padded copy took
+    # ~2 ms of GAD's ~13 at 1080p, this ~0.4). dtype float32: NumPy 1.x would multiply in float16.
+    blob = np.empty((1, 3, in_h, in_w), np.float32) if out is None else out
+    pad = np.float32(PAD_VALUE) * _UNIT
+    blob[0, :, new_h:] = pad
+    blob[0, :, :new_h, new_w:] = pad
+    for plane, channel in zip(cv2.split(image_bgr)[::-1], blob[0]):
+        np.multiply(plane, _UNIT, out=channel[:new_h, :new_w], dtype=np.float32)
+    return blob, Letterbox((new_w / float(w), new_h / float(h)), (int(w), int(h)), (in_w, in_h))
 
 
 def decode(maps: np.ndarray, confidence: float, input_wh: Tuple[int, int]) -> Tuple[np.ndarray, np.ndarray]:
@@ -95,6 +100,7 @@ class AppearanceDetector:
         self.module = module
         self.input_wh = (int(cfg.input_wh[0]), int(cfg.input_wh[1]))
         self._input_name = next(iter(model.input_shapes))
+        self._blob = np.empty((1, 3, self.input_wh[1], self.input_wh[0]), np.float32)  # the input, reused
         # one run at the live input size: checks the output layout (and warms that shape)
         probe = np.zeros((1, 3, self.input_wh[1], self.input_wh[0]), np.float32)
         out = model.run({self._input_name: probe})[0]
@@ -113,8 +119,8 @@ class AppearanceDetector:
     def detect(self, image_bgr: np.ndarray, offset_xy: Tuple[float, float] = (0, 0)) -> Detections:
         if image_bgr is None or image_bgr.ndim != 3 or image_bgr.shape[0] < 1 or image_bgr.shape[1] < 1:
             return Detections.empty()
-        canvas, box = letterbox(image_bgr, self.input_wh)
-        maps = self.model.run({self._input_name: to_input(canvas)})[0]
+        blob, box = letterbox(image_bgr, self.input_wh, out=self._blob)
+        maps = self.model.run({self._input_name: blob})[0]
         xyxy, score = decode(maps, self.cfg.confidence, self.input_wh)
         keep = nms(xyxy, score, self.cfg.nms_iou)
         if not len(keep):
