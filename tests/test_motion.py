@@ -333,3 +333,26 @@ def test_a_wide_frame_is_segmented_at_half_size_and_judged_at_full_resolution():
     # the blob of a frame difference covers where the mover was (aligned) and is: 1197-1215, 698-712
     assert x1 <= 1197 and y1 <= 698 and x2 >= 1215 and y2 >= 712, result.detections.xyxy
     assert x2 - x1 < 40 and y2 - y1 < 30, result.detections.xyxy
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_candidates_corners_are_searched_on_its_box_alone(seed):
+    # the corners of the box and its context are the corners goodFeaturesToTrack finds on the
+    # whole crop under the same mask, boxes at the crop's edges and corners at the box's included
+    from payload.detect.motion import box_corners
+
+    rng = np.random.default_rng(seed)
+    cfg = MotionConfig()
+    crop = texture(90, 120, seed, 1.0, 0, 255)
+    for _ in range(40):
+        w, h = (int(v) for v in rng.integers(3, 40, 2))
+        x1, y1 = int(rng.integers(0, 120 - w + 1)), int(rng.integers(0, 90 - h + 1))
+        x1, y1 = (0 if rng.random() < 0.2 else x1), (90 - h if rng.random() < 0.2 else y1)
+        mask = np.zeros_like(crop)
+        mask[y1:y1 + h, x1:x1 + w] = (rng.random((h, w)) < 0.7) * 255
+        whole = cv2.goodFeaturesToTrack(crop, cfg.max_corners, cfg.corner_quality, cfg.corner_min_distance_px,
+                                        mask=mask)
+        found = box_corners(crop, mask, (x1, y1, x1 + w, y1 + h), cfg)
+        assert (whole is None) == (found is None)
+        if whole is not None:
+            assert np.array_equal(found, whole), (x1, y1, w, h)

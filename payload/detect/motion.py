@@ -18,7 +18,7 @@ Every threshold comes from ``MotionConfig``.
 
 import logging
 from dataclasses import dataclass
-from typing import Tuple
+from typing import Optional, Tuple
 
 import cv2
 import numpy as np
@@ -45,6 +45,10 @@ MAX_SEGMENT_WIDTH_PX = 1280
 #: scaled down to fit. LK's cost grows with the window's area: a 100 px window took ~50 ms.
 MAX_BOX_WINDOW_PX = 31
 _KERNEL_3X3 = np.ones((3, 3), np.uint8)
+#: Pixels around a candidate's box that its Shi-Tomasi corners depend on: the 3x3 gradient (1), the
+#: 3x3 covariance block (1), the 3x3 local-maximum test (1), and OpenCV never taking a corner on
+#: the image's outermost row or column (1).
+GFTT_CONTEXT_PX = 4
 
 
 @dataclass(frozen=True)
@@ -258,9 +262,7 @@ class MotionDetector:
             if step > 1:
                 blob = cv2.resize(blob, (x2 - x1, y2 - y1), interpolation=cv2.INTER_NEAREST)
             fg[y1 - cy1 : y2 - cy1, x1 - cx1 : x2 - cx1] = blob
-            corners = cv2.goodFeaturesToTrack(
-                prev_crop, cfg.max_corners, cfg.corner_quality, cfg.corner_min_distance_px, mask=fg
-            )
+            corners = box_corners(prev_crop, fg, (x1 - cx1, y1 - cy1, x2 - cx1, y2 - cy1), cfg)
             flows = np.zeros((0, 2), np.float32)
             if corners is not None:
                 flows = _tracked_flows(prev_crop, cur_crop, corners, lk)
@@ -316,6 +318,22 @@ class MotionDetector:
         lk["winSize"] = (side, side)
         flows = _tracked_flows(prev_crop, cur_crop, centre, lk)
         return float(np.hypot(*flows[0])) / scale if len(flows) else 0.0
+
+
+def box_corners(image: np.ndarray, mask: np.ndarray, box_xyxy: Tuple[int, int, int, int],
+                cfg: MotionConfig) -> Optional[np.ndarray]:
+    """Shi-Tomasi corners of ``image`` where ``mask`` (nonzero only inside the box) allows: the
+    corners cv2.goodFeaturesToTrack finds on the whole image, searched on the box and the
+    GFTT_CONTEXT_PX around it that they depend on (a fraction of a candidate's crop)."""
+    x1, y1, x2, y2 = box_xyxy
+    h, w = image.shape[:2]
+    gx1, gy1 = max(0, x1 - GFTT_CONTEXT_PX), max(0, y1 - GFTT_CONTEXT_PX)
+    gx2, gy2 = min(w, x2 + GFTT_CONTEXT_PX), min(h, y2 + GFTT_CONTEXT_PX)
+    corners = cv2.goodFeaturesToTrack(image[gy1:gy2, gx1:gx2], cfg.max_corners, cfg.corner_quality,
+                                      cfg.corner_min_distance_px, mask=mask[gy1:gy2, gx1:gx2])
+    if corners is not None:
+        corners += np.float32([gx1, gy1])
+    return corners
 
 
 def _aligned(prev: np.ndarray, cur: np.ndarray, camera: CameraMotion, crop=None) -> np.ndarray:
