@@ -352,7 +352,7 @@ def test_a_candidates_corners_are_searched_on_its_box_alone(seed):
         mask[y1:y1 + h, x1:x1 + w] = (rng.random((h, w)) < 0.7) * 255
         whole = cv2.goodFeaturesToTrack(crop, cfg.max_corners, cfg.corner_quality, cfg.corner_min_distance_px,
                                         mask=mask)
-        found = box_corners(crop, mask, (x1, y1, x1 + w, y1 + h), cfg)
+        found = box_corners(crop, mask[y1:y1 + h, x1:x1 + w], (x1, y1, x1 + w, y1 + h), cfg)
         assert (whole is None) == (found is None)
         if whole is not None:
             assert np.array_equal(found, whole), (x1, y1, w, h)

@@ -257,12 +257,10 @@ class MotionDetector:
             cx2, cy2 = min(w, x2 + margin), min(h, y2 + margin)
             prev_crop = aligned_crop((slice(cy1, cy2), slice(cx1, cx2)))
             cur_crop = cur[cy1:cy2, cx1:cx2]
-            fg = np.zeros_like(prev_crop)
             blob = mask[y1 // step : y2 // step, x1 // step : x2 // step]
             if step > 1:
                 blob = cv2.resize(blob, (x2 - x1, y2 - y1), interpolation=cv2.INTER_NEAREST)
-            fg[y1 - cy1 : y2 - cy1, x1 - cx1 : x2 - cx1] = blob
-            corners = box_corners(prev_crop, fg, (x1 - cx1, y1 - cy1, x2 - cx1, y2 - cy1), cfg)
+            corners = box_corners(prev_crop, blob, (x1 - cx1, y1 - cy1, x2 - cx1, y2 - cy1), cfg)
             flows = np.zeros((0, 2), np.float32)
             if corners is not None:
                 flows = _tracked_flows(prev_crop, cur_crop, corners, lk)
@@ -320,17 +318,19 @@ class MotionDetector:
         return float(np.hypot(*flows[0])) / scale if len(flows) else 0.0
 
 
-def box_corners(image: np.ndarray, mask: np.ndarray, box_xyxy: Tuple[int, int, int, int],
+def box_corners(image: np.ndarray, box_mask: np.ndarray, box_xyxy: Tuple[int, int, int, int],
                 cfg: MotionConfig) -> Optional[np.ndarray]:
-    """Shi-Tomasi corners of ``image`` where ``mask`` (nonzero only inside the box) allows: the
-    corners cv2.goodFeaturesToTrack finds on the whole image, searched on the box and the
-    GFTT_CONTEXT_PX around it that they depend on (a fraction of a candidate's crop)."""
+    """Shi-Tomasi corners of ``image`` on the box's foreground (``box_mask``, the box's size): the
+    corners cv2.goodFeaturesToTrack finds on the whole image masked to them, searched on the box
+    and the GFTT_CONTEXT_PX around it that they depend on (a fraction of a candidate's crop)."""
     x1, y1, x2, y2 = box_xyxy
     h, w = image.shape[:2]
     gx1, gy1 = max(0, x1 - GFTT_CONTEXT_PX), max(0, y1 - GFTT_CONTEXT_PX)
     gx2, gy2 = min(w, x2 + GFTT_CONTEXT_PX), min(h, y2 + GFTT_CONTEXT_PX)
+    mask = np.zeros((gy2 - gy1, gx2 - gx1), np.uint8)
+    mask[y1 - gy1:y2 - gy1, x1 - gx1:x2 - gx1] = box_mask
     corners = cv2.goodFeaturesToTrack(image[gy1:gy2, gx1:gx2], cfg.max_corners, cfg.corner_quality,
-                                      cfg.corner_min_distance_px, mask=mask[gy1:gy2, gx1:gx2])
+                                      cfg.corner_min_distance_px, mask=mask)
     if corners is not None:
         corners += np.float32([gx1, gy1])
     return corners
