@@ -57,20 +57,23 @@ def test_coasting_row_keeps_the_last_size_and_verdict_and_marks_itself():
     assert coast[FEATURES.index("log2_w")] == pytest.approx(3.0) and coast[P] == pytest.approx(0.6)
 
 
+@pytest.mark.parametrize("look", [False, True])
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
-def test_non_finite_inputs_never_reach_a_row(bad):
+def test_non_finite_inputs_never_reach_a_row(bad, look):
     grey = np.zeros((100, 100), np.uint8)
-    f = LockFeatures()
+    f = LockFeatures(look=look)
     f.row(grey, np.array([10, 10, 18, 14.0]), np.array([10, 10, 18, 14.0]), bad, "LAD", bad, None)
     row = f.row(grey, np.array([10, 10, 18, 14.0]), np.array([10, 10, 18, 14.0]), 0.5, "LAD", 0.5,
                 np.full((3, 3), bad))
     assert np.all(np.isfinite(row)) and row[FEATURES.index("motion_valid")] == 0
 
 
-def test_box_at_and_beyond_the_frame_edge_gives_finite_rows():
+@pytest.mark.parametrize("look", [False, True])
+def test_box_at_and_beyond_the_frame_edge_gives_finite_rows(look):
     grey = np.full((50, 60), 7, np.uint8)
-    f = LockFeatures()
-    for box in ([-20, -20, 5, 5], [55, 45, 90, 90], [59, 49, 59, 49], [100, 100, 120, 120]):
+    grey[::3] = 200  # texture, so that the look's statistics are not all zero
+    f = LockFeatures(look=look)
+    for box in ([-20, -20, 5, 5], [55, 45, 90, 90], [59, 49, 59, 49], [100, 100, 120, 120], [-500, -500, 900, 900]):
         assert np.all(np.isfinite(f.row(grey, np.array(box, float), np.array(box, float), 0.5, "LAD", 0.5, np.eye(3))))
 
 
@@ -131,12 +134,25 @@ def test_detector_model_given_as_verifier_is_refused(tmp_path):
 
 
 def test_shipped_verifier_meets_the_contract():
-    model = OnnxModel(builtin_model_path("verifier"),
-                      expected_inputs={"tracks": (None, None, N_FEATURES)})
+    from payload.detect.verify import N_LOOK
+
+    model = OnnxModel(builtin_model_path("verifier"), expected_inputs={"tracks": (None, None, None)})
     check_verifier(model)
     v = LockVerifier(model, min_frames=1)
-    v.add(_row(0.5))
+    assert v.n_features == N_FEATURES + N_LOOK and v.features.look  # it judges the look of the target's pixels too
+    v.add(np.r_[_row(0.5), np.zeros(N_LOOK, np.float32)])
     assert 0.0 <= v.probability <= 1.0
+
+
+def test_verifier_with_a_feature_count_of_neither_kind_is_refused_in_one_line(tmp_path):
+    from payload.detect.verify import N_LOOK
+
+    path = last_row_verifier(tmp_path / "v.onnx", P, features=N_FEATURES + N_LOOK + 1)
+    model = OnnxModel(path, expected_inputs={"tracks": (None, None, None)})
+    with pytest.raises(ModelError) as err:
+        check_verifier(model)
+    msg = str(err.value)
+    assert "[N, T, %d or %d]" % (N_FEATURES, N_FEATURES + N_LOOK) in msg and "\n" not in msg
 
 
 def test_release_above_threshold_is_a_config_error():
@@ -196,3 +212,80 @@ def test_reload_switches_the_verifier_off_and_on(tmp_path):
     assert glad.update_config(on) == ["detector.verifier.enabled"]
     glad.reset()
     assert not len(glad.process(_frame(0, 4)).detections)  # on again: judged first
+
+
+# --- the look of the target's pixels -----------------------------------------------------------------
+
+def test_look_rows_tell_a_round_steady_blob_from_a_changing_elongated_one():
+    from payload.detect.verify import LOOK_FEATURES, PATCH_PX, look_rows, target_patch
+
+    grey = np.full((120, 160), 60, np.uint8)
+    grey[50:56, 70:76] = 200  # a 6x6 warm blob
+    round_ = target_patch(grey, np.array([70, 50, 76, 56.0]))
+    wide = np.full((120, 160), 60, np.uint8)
+    wide[52:54, 64:82] = 200  # the same place, spread into a horizontal bar (wings out)
+    bar = target_patch(wide, np.array([70, 50, 76, 56.0]))
+    assert round_.shape == (PATCH_PX, PATCH_PX) and round_.dtype == np.uint8
+    nat = target_patch(grey, np.array([70, 50, 76, 56.0]), native=True)
+    rows = look_rows(np.stack([round_, round_, bar]), np.stack([nat, nat, nat]), np.stack([round_, round_, round_]),
+                     np.array([False, True, True]))
+    f = {name: rows[:, i] for i, name in enumerate(LOOK_FEATURES)}
+    assert f["look_ncc"][0] == 0.0  # no previous patch: no correlation claimed
+    assert f["look_ncc"][1] == pytest.approx(1.0, abs=1e-4)  # the same look as last frame
+    assert f["look_ncc"][2] < 0.5  # the look changed
+    assert f["look_aniso"][0] < 0.2 and f["look_aniso"][2] > 0.8  # round, then a line
+    assert f["look_cos2"][2] > 0.8  # ... along x
+    assert np.isfinite(rows).all()
+
+
+def test_look_rows_stay_finite_on_flat_and_edge_patches():
+    from payload.detect.verify import look_rows, target_patch
+
+    flat = np.full((50, 50), 7, np.uint8)
+    patches = np.stack([target_patch(flat, np.array(b, float)) for b in ([0, 0, 1, 1], [49, 49, 50, 50], [-30, -30, 80, 80])])
+    rows = look_rows(patches, patches, patches, np.array([True, False, True]))
+    assert np.isfinite(rows).all()
+
+
+def test_run_time_rows_are_the_rows_the_verifier_was_trained_on():
+    """GLAD's rows with the shipped verifier, frame by frame (the previous patch kept per lock), equal
+    those training/train_verifier.py makes from the mined patches of the same frames and boxes."""
+    import cv2
+
+    from payload.detect.pipeline import Glad
+    from payload.detect.verify import target_patch
+    from payload.synth.scene import Scene
+    from training.train_verifier import with_look
+
+    cfg = Config()
+    glad = Glad(cfg.detector.model_copy(update={"threads": 1}))
+    assert glad.models.verifier is not None
+    full, base, rel, nat, lock = [], [], [], [], []
+    lock_id = -1
+    for sf in Scene(seed=5, frames=40, target_px=(8.0, 20.0)):
+        glad.process(Frame(image=sf.image, index=sf.index, t_capture_ns=int(sf.index * 1e9 / 30), t_wall_ns=0))
+        track = glad.tracks[0] if glad.tracks else None
+        if track is None or track.last_row is None:
+            continue
+        if len(track.verifier.rows) == 1:
+            lock_id += 1
+        grey = cv2.cvtColor(sf.image, cv2.COLOR_BGR2GRAY)
+        full.append(track.last_row)
+        base.append(track.last_row[:N_FEATURES])
+        rel.append(target_patch(grey, track.verifier.features.box))
+        nat.append(target_patch(grey, track.verifier.features.box, native=True))
+        lock.append(lock_id)
+    assert len(full) >= 20 and full[0].shape[0] > N_FEATURES  # the shipped verifier looks at the pixels
+    trained = with_look(dict(rows=np.array(base), patch_rel=np.array(rel), patch_nat=np.array(nat), lock=np.array(lock)))
+    np.testing.assert_allclose(np.array(full), trained, rtol=1e-5, atol=1e-5)
+
+
+def test_a_frame_sized_box_makes_its_patch_from_a_bounded_square():
+    from payload.detect.verify import MAX_PATCH_SIDE_PX, PATCH_PX, target_patch
+
+    grey = np.zeros((1080, 1920), np.uint8)
+    cy, cx = 540, 960
+    half = MAX_PATCH_SIDE_PX // 2
+    grey[cy - half:cy + half, cx - half:cx + half] = 255  # exactly the bounded square around the centre
+    patch = target_patch(grey, np.array([0, 0, 1920, 1080.0]))
+    assert patch.shape == (PATCH_PX, PATCH_PX) and patch.min() == 255  # the square, not the whole frame

@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.config import config_with, load_config  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
-from payload.detect.verify import N_FEATURES  # noqa: E402
+from payload.detect.verify import N_FEATURES, PATCH_PX, target_patch  # noqa: E402
 from payload.eval.cv import fold_model_files, halmstad_clips  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
@@ -60,7 +60,9 @@ def run(glad, frames, fps=30.0):
     """GLAD from a fresh start over ``frames`` ((index, image, drone boxes [K,4] or None)): the arrays
     of one clip."""
     glad.reset()
-    rows, index, lock, confirmed, box, gt = [], [], [], [], [], []
+    import cv2
+
+    rows, index, lock, confirmed, box, gt, patch_rel, patch_nat = [], [], [], [], [], [], [], []
     n_frames = n_gt = 0
     lock_id = -1
     for i, image, drones in frames:
@@ -74,17 +76,24 @@ def run(glad, frames, fps=30.0):
             continue
         if len(track.verifier.rows) == 1:
             lock_id += 1
-        rows.append(track.last_row)
+        rows.append(track.last_row[:N_FEATURES])  # the look features are made from the patches below
         index.append(i)
         lock.append(lock_id)
         confirmed.append(track.lock.confirmed)
         b = track.last_box
         box.append(np.full(4, np.nan, np.float32) if b is None else b)
         gt.append(nearest(drones, b))
+        # the target's pixels where its row measured it, to study its look over time
+        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+        measured = track.verifier.features.box
+        patch_rel.append(target_patch(grey, measured))
+        patch_nat.append(target_patch(grey, measured, native=True))
     return dict(rows=np.asarray(rows, np.float32).reshape(-1, N_FEATURES), frame=np.asarray(index, np.int32),
                 lock=np.asarray(lock, np.int32), confirmed=np.asarray(confirmed, bool),
                 box=np.asarray(box, np.float32).reshape(-1, 4), gt=np.asarray(gt, np.float32).reshape(-1, 4),
-                frames=np.int32(n_frames), gt_frames=np.int32(n_gt))
+                frames=np.int32(n_frames), gt_frames=np.int32(n_gt),
+                patch_rel=np.asarray(patch_rel, np.uint8).reshape(-1, PATCH_PX, PATCH_PX),
+                patch_nat=np.asarray(patch_nat, np.uint8).reshape(-1, PATCH_PX, PATCH_PX))
 
 
 def halmstad_frames(clip):

@@ -14,7 +14,7 @@ from payload.config import AppearanceConfig, DetectorConfig
 from payload.detect.appearance import AppearanceDetector
 from payload.detect.classifier import AppearanceClassifier
 from payload.detect.onnx_model import OnnxModel
-from payload.detect.verify import N_FEATURES
+from payload.detect.verify import N_FEATURES, N_LOOK
 from payload.errors import ModelError
 from payload.types import GAD, LAD
 
@@ -67,7 +67,7 @@ def build_detectors(cfg: DetectorConfig) -> DetectorModels:
     verifier = None
     if cfg.verifier.enabled:
         verifier = model(cfg.verifier.model, "verifier", "detector.verifier.model",
-                         {"tracks": (None, None, N_FEATURES)}, None)
+                         {"tracks": (None, None, None)}, None)
         check_verifier(verifier)
     return DetectorModels(
         global_appearance=appearance(cfg.global_.appearance, "global", GAD),
@@ -81,9 +81,9 @@ def check_verifier(model: OnnxModel) -> None:
     """The verifier's contract (payload.detect.verify): [N, T, F] rows in, [N, 1] probability out."""
     shape = next(iter(model.input_shapes.values()))
     window, features = shape[1], shape[2]
-    if not (isinstance(window, int) and window > 0 and features == N_FEATURES):
-        raise ModelError("%s: expected input [N, T, %d] (T frames of the lock's rows), found %s"
-                         % (model.path, N_FEATURES, list(shape)))
-    out = model.run({next(iter(model.input_shapes)): np.zeros((1, window, N_FEATURES), np.float32)})[0]
+    if not (isinstance(window, int) and window > 0 and features in (N_FEATURES, N_FEATURES + N_LOOK)):
+        raise ModelError("%s: expected input [N, T, %d or %d] (T frames of the lock's rows, with or without the "
+                         "look of its pixels), found %s" % (model.path, N_FEATURES, N_FEATURES + N_LOOK, list(shape)))
+    out = model.run({next(iter(model.input_shapes)): np.zeros((1, window, features), np.float32)})[0]
     if out.size != 1:
         raise ModelError("%s: expected output [N, 1] (drone probability), found %s" % (model.path, list(out.shape)))

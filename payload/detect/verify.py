@@ -6,12 +6,17 @@ shows over time: how the target moves against the camera-compensated background 
 and turns, a bird glides and flaps, an airliner crawls), how its look and size hold (rotor
 flicker vs wing beat, shape stability), what lies around it (smooth sky or textured ground), and
 how the classifier's verdicts run. ``LockFeatures`` turns each frame of a lock into one row of
-such measurements (the same code at training and at run time); ``LockVerifier`` keeps the last
-``window`` rows of the current lock and asks a small ONNX network of our own (training/
-train_verifier.py) for the probability that the lock is a drone.
+such measurements (the same code at training and at run time), and where the network asks for
+them the ``LOOK_FEATURES`` of the target's own pixels (``target_patch``, ``look_rows``): the shape
+of what stands out at half its peak, and how that look holds from frame to frame, where the box
+alone cannot tell a wing beat (a fast bird of one thermal session, counted a drone on 5 % of its
+frames by the rows alone, docs/results.md). ``LockVerifier`` keeps the last ``window`` rows of the
+current lock and asks a small ONNX network of our own (training/train_verifier.py) for the
+probability that the lock is a drone.
 
-Network contract: input 'tracks' [N, T, F] float32 (F = len(FEATURES), rows oldest first, missing
-rows all zero: their 'present' feature is 0); output [N, 1] drone probability.
+Network contract: input 'tracks' [N, T, F] float32 (F = len(FEATURES), or that plus
+len(LOOK_FEATURES): the network's F says which; rows oldest first, missing rows all zero: their
+'present' feature is 0); output [N, 1] drone probability.
 """
 
 import logging
@@ -44,14 +49,17 @@ _MODULES = (GAD, GMD, LAD, LMD)
 
 
 class LockFeatures:
-    """Per-frame measurements of one lock (``row``), remembering where it was last frame."""
+    """Per-frame measurements of one lock (``row``), remembering where it was last frame. With
+    ``look``, each row goes on with the LOOK_FEATURES of the target's own pixels."""
 
-    def __init__(self) -> None:
-        self._prev_center: Optional[np.ndarray] = None
-        self._last = np.zeros(N_FEATURES, np.float32)
+    def __init__(self, look: bool = False) -> None:
+        self.look = look
+        self.reset()
+        self.box = np.zeros(4)  # the box this frame's row measured (the detector's, else the prediction)
 
     def reset(self) -> None:
-        self._prev_center = None
+        self._prev_center: Optional[np.ndarray] = None
+        self._prev_patch: Optional[np.ndarray] = None
         self._last = np.zeros(N_FEATURES, np.float32)
 
     def row(self, grey: np.ndarray, target_xyxy: np.ndarray, measured_xyxy: Optional[np.ndarray],
@@ -61,7 +69,7 @@ class LockFeatures:
         this frame's (None when unknown, e.g. on the frame a lock starts)."""
         r = np.zeros(N_FEATURES, np.float32)
         r[0] = 1.0
-        box = np.asarray(measured_xyxy if measured_xyxy is not None else target_xyxy, np.float64)
+        box = self.box = np.asarray(measured_xyxy if measured_xyxy is not None else target_xyxy, np.float64)
         center = np.array([(box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0])
         w, h = max(1.0, box[2] - box[0]), max(1.0, box[3] - box[1])
         if measured_xyxy is not None:
@@ -87,7 +95,40 @@ class LockFeatures:
                 r[17] = 1.0
         self._prev_center = center
         self._last = r
-        return r
+        if not self.look:
+            return r
+        patch = target_patch(grey, box)
+        prev = self._prev_patch if self._prev_patch is not None else patch
+        look = look_rows(patch[None], target_patch(grey, box, native=True)[None], prev[None],
+                         np.array([self._prev_patch is not None]))[0]
+        self._prev_patch = patch
+        return np.concatenate([r, look])
+
+
+PATCH_PX = 16
+#: The square a patch is made from at most: a frame-sized box would cost milliseconds to shrink,
+#: and no lock in the verifier's training was larger than 300 px (a 600 px square).
+MAX_PATCH_SIDE_PX = 640
+
+
+def target_patch(grey: np.ndarray, box: np.ndarray, native: bool = False) -> np.ndarray:
+    """The target's own pixels: PATCH_PX x PATCH_PX uint8 grey around the box's centre, of a square
+    twice the box's larger side (at least PATCH_PX / 2 px), or with ``native`` of the frame's own
+    pixels; the frame's edge repeated where the square leaves it."""
+    import cv2
+
+    H, W = grey.shape[:2]
+    cx = min(W - 1.0, max(0.0, (box[0] + box[2]) / 2.0))
+    cy = min(H - 1.0, max(0.0, (box[1] + box[3]) / 2.0))
+    side = PATCH_PX if native else max(PATCH_PX // 2, int(round(2 * max(box[2] - box[0], box[3] - box[1]))))
+    side = min(side, MAX_PATCH_SIDE_PX)
+    x1, y1 = int(round(cx - side / 2.0)), int(round(cy - side / 2.0))
+    crop = grey[max(0, y1):min(H, y1 + side), max(0, x1):min(W, x1 + side)]
+    crop = cv2.copyMakeBorder(crop, max(0, -y1), max(0, y1 + side - H), max(0, -x1), max(0, x1 + side - W),
+                              cv2.BORDER_REPLICATE)
+    if side == PATCH_PX:
+        return np.ascontiguousarray(crop)
+    return cv2.resize(crop, (PATCH_PX, PATCH_PX), interpolation=cv2.INTER_AREA if side > PATCH_PX else cv2.INTER_LINEAR)
 
 
 def _finite(value) -> float:
@@ -138,7 +179,8 @@ class LockVerifier:
             self._input_name, shape = next(iter(model.input_shapes.items()))
             window = int(shape[1])
         self.window = window
-        self.features = LockFeatures()
+        self.n_features = int(shape[2]) if model is not None else N_FEATURES
+        self.features = LockFeatures(look=self.n_features == N_FEATURES + N_LOOK)
         self.rows: deque = deque(maxlen=window)
         self.update_config(min_frames, threshold, release_threshold, enabled)
         self.reset()
@@ -178,7 +220,59 @@ class LockVerifier:
 
     def window_array(self) -> np.ndarray:
         """The last ``window`` rows [T, F], oldest first, zero rows in front while fewer."""
-        out = np.zeros((self.window, N_FEATURES), np.float32)
+        out = np.zeros((self.window, self.n_features), np.float32)
         if self.rows:
             out[self.window - len(self.rows):] = np.stack(self.rows)
         return out
+
+
+LOOK_FEATURES = (
+    "look_log_area",  # log2 of the target's pixels (at half its peak) in the box-scaled patch
+    "look_aniso",  # (l1 - l2) / (l1 + l2) of their second moments: 0 round, 1 a line
+    "look_cos2", "look_sin2",  # their orientation (2 theta), scaled by the anisotropy
+    "look_peak",  # log1p of the peak against the patch border's spread
+    "look_ncc",  # normalised correlation with the lock's previous patch (0: none)
+    "look_sharp",  # mean |Laplacian| at the centre of the native patch against its spread: rotor blur
+)
+
+
+N_LOOK = len(LOOK_FEATURES)
+
+
+def look_rows(rel: np.ndarray, nat: np.ndarray, prev_rel: np.ndarray, has_prev: np.ndarray) -> np.ndarray:
+    """[n, len(LOOK_FEATURES)] from patches [n, PATCH_PX, PATCH_PX] uint8 (target_patch): the box-scaled
+    one, the native one, the lock's previous box-scaled one (``has_prev`` False where there is none)."""
+    import cv2
+
+    p = rel.astype(np.float32)
+    n = len(p)
+    border = np.concatenate([p[:, 0, :], p[:, -1, :], p[:, 1:-1, 0], p[:, 1:-1, -1]], 1)
+    bg = np.median(border, 1)
+    noise = border.std(1)
+    c = PATCH_PX // 2
+    sign = np.where(p[:, c - 2:c + 2, c - 2:c + 2].mean((1, 2)) >= bg, 1.0, -1.0).astype(np.float32)
+    a = np.maximum(0.0, sign[:, None, None] * (p - bg[:, None, None]))
+    peak = a[:, c // 2:c + c // 2, c // 2:c + c // 2].max((1, 2))
+    on = (a >= 0.5 * peak[:, None, None]) & (peak[:, None, None] > 0)
+    w = a * on
+    m = w.sum((1, 2)) + 1e-6
+    ys, xs = np.mgrid[0:PATCH_PX, 0:PATCH_PX].astype(np.float32)
+    mx = (w * xs).sum((1, 2)) / m
+    my = (w * ys).sum((1, 2)) / m
+    dx, dy = xs[None] - mx[:, None, None], ys[None] - my[:, None, None]
+    cxx, cyy, cxy = ((w * dx * dx).sum((1, 2)) / m, (w * dy * dy).sum((1, 2)) / m, (w * dx * dy).sum((1, 2)) / m)
+    disc = np.sqrt((cxx - cyy) ** 2 / 4.0 + cxy ** 2)
+    l1, l2 = (cxx + cyy) / 2.0 + disc, np.maximum(0.0, (cxx + cyy) / 2.0 - disc)
+    aniso = (l1 - l2) / (l1 + l2 + 1e-6)
+    theta2 = np.arctan2(2.0 * cxy, cxx - cyy)
+    q = prev_rel.astype(np.float32)
+    pz, qz = p - p.mean((1, 2))[:, None, None], q - q.mean((1, 2))[:, None, None]
+    ncc = (pz * qz).sum((1, 2)) / np.sqrt((pz * pz).sum((1, 2)) * (qz * qz).sum((1, 2)) + 1e-6)
+    ncc = np.where(has_prev, ncc, 0.0)
+    sharp = np.zeros(n, np.float32)
+    for i in range(n):
+        lap = cv2.Laplacian(nat[i], cv2.CV_32F)
+        sharp[i] = np.abs(lap[c - 4:c + 4, c - 4:c + 4]).mean() / (float(nat[i].std()) + 4.0)
+    out = np.stack([np.log2(on.sum((1, 2)) + 1.0), aniso, aniso * np.cos(theta2), aniso * np.sin(theta2),
+                    np.log1p(peak / (noise + 4.0)), ncc, sharp], 1)
+    return out.astype(np.float32)
