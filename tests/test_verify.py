@@ -217,7 +217,7 @@ def test_reload_switches_the_verifier_off_and_on(tmp_path):
 # --- the look of the target's pixels -----------------------------------------------------------------
 
 def test_look_rows_tell_a_round_steady_blob_from_a_changing_elongated_one():
-    from payload.detect.verify import LOOK_FEATURES, PATCH_PX, look_rows, target_patch
+    from payload.detect.verify import LOOK_FEATURES, PATCH_PX, look_row, target_patch
 
     grey = np.full((120, 160), 60, np.uint8)
     grey[50:56, 70:76] = 200  # a 6x6 warm blob
@@ -227,8 +227,7 @@ def test_look_rows_tell_a_round_steady_blob_from_a_changing_elongated_one():
     bar = target_patch(wide, np.array([70, 50, 76, 56.0]))
     assert round_.shape == (PATCH_PX, PATCH_PX) and round_.dtype == np.uint8
     nat = target_patch(grey, np.array([70, 50, 76, 56.0]), native=True)
-    rows = look_rows(np.stack([round_, round_, bar]), np.stack([nat, nat, nat]), np.stack([round_, round_, round_]),
-                     np.array([False, True, True]))
+    rows = np.stack([look_row(round_, nat, None), look_row(round_, nat, round_), look_row(bar, nat, round_)])
     f = {name: rows[:, i] for i, name in enumerate(LOOK_FEATURES)}
     assert f["look_ncc"][0] == 0.0  # no previous patch: no correlation claimed
     assert f["look_ncc"][1] == pytest.approx(1.0, abs=1e-4)  # the same look as last frame
@@ -239,12 +238,12 @@ def test_look_rows_tell_a_round_steady_blob_from_a_changing_elongated_one():
 
 
 def test_look_rows_stay_finite_on_flat_and_edge_patches():
-    from payload.detect.verify import look_rows, target_patch
+    from payload.detect.verify import look_row, target_patch
 
     flat = np.full((50, 50), 7, np.uint8)
-    patches = np.stack([target_patch(flat, np.array(b, float)) for b in ([0, 0, 1, 1], [49, 49, 50, 50], [-30, -30, 80, 80])])
-    rows = look_rows(patches, patches, patches, np.array([True, False, True]))
-    assert np.isfinite(rows).all()
+    for b in ([0, 0, 1, 1], [49, 49, 50, 50], [-30, -30, 80, 80]):
+        patch = target_patch(flat, np.array(b, float))
+        assert np.isfinite(look_row(patch, patch, patch)).all() and np.isfinite(look_row(patch, patch, None)).all()
 
 
 def test_run_time_rows_are_the_rows_the_verifier_was_trained_on():

@@ -25,7 +25,7 @@ from typing import Dict, List
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from payload.detect.verify import FEATURES, LOOK_FEATURES, N_FEATURES, PATCH_PX, look_rows  # noqa: E402
+from payload.detect.verify import FEATURES, LOOK_FEATURES, N_FEATURES, PATCH_PX, look_row  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from training.mine_tracks import fold_of  # noqa: E402
 
@@ -46,10 +46,9 @@ def group_of(name: str) -> str:
 
 def with_look(c) -> np.ndarray:
     """The clip's rows with the look features of its patches appended (training/mine_tracks.py)."""
-    rel, lock = c["patch_rel"], c["lock"]
-    has_prev = np.r_[False, lock[1:] == lock[:-1]] if len(lock) else np.zeros(0, bool)
-    prev = np.concatenate([rel[:1], rel[:-1]]) if len(rel) else rel
-    return np.concatenate([c["rows"], look_rows(rel, c["patch_nat"], prev, has_prev)], 1)
+    rel, nat, lock = c["patch_rel"], c["patch_nat"], c["lock"]
+    look = [look_row(rel[i], nat[i], rel[i - 1] if i and lock[i] == lock[i - 1] else None) for i in range(len(rel))]
+    return np.concatenate([c["rows"], np.asarray(look, np.float32).reshape(len(rel), len(LOOK_FEATURES))], 1)
 
 
 PATCHES = None  # with --look-cnn: every mined patch [M + 1, PATCH_PX**2] float32, the last one zero (padding)

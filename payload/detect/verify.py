@@ -7,7 +7,7 @@ and turns, a bird glides and flaps, an airliner crawls), how its look and size h
 flicker vs wing beat, shape stability), what lies around it (smooth sky or textured ground), and
 how the classifier's verdicts run. ``LockFeatures`` turns each frame of a lock into one row of
 such measurements (the same code at training and at run time), and where the network asks for
-them the ``LOOK_FEATURES`` of the target's own pixels (``target_patch``, ``look_rows``): the shape
+them the ``LOOK_FEATURES`` of the target's own pixels (``target_patch``, ``look_row``): the shape
 of what stands out at half its peak, and how that look holds from frame to frame, where the box
 alone cannot tell a wing beat (a fast bird of one thermal session, counted a drone on 5 % of its
 frames by the rows alone, docs/results.md). ``LockVerifier`` keeps the last ``window`` rows of the
@@ -98,9 +98,7 @@ class LockFeatures:
         if not self.look:
             return r
         patch = target_patch(grey, box)
-        prev = self._prev_patch if self._prev_patch is not None else patch
-        look = look_rows(patch[None], target_patch(grey, box, native=True)[None], prev[None],
-                         np.array([self._prev_patch is not None]))[0]
+        look = look_row(patch, target_patch(grey, box, native=True), self._prev_patch)
         self._prev_patch = patch
         return np.concatenate([r, look])
 
@@ -239,40 +237,40 @@ LOOK_FEATURES = (
 N_LOOK = len(LOOK_FEATURES)
 
 
-def look_rows(rel: np.ndarray, nat: np.ndarray, prev_rel: np.ndarray, has_prev: np.ndarray) -> np.ndarray:
-    """[n, len(LOOK_FEATURES)] from patches [n, PATCH_PX, PATCH_PX] uint8 (target_patch): the box-scaled
-    one, the native one, the lock's previous box-scaled one (``has_prev`` False where there is none)."""
+_BORDER = np.zeros((PATCH_PX, PATCH_PX), bool)
+_BORDER[0] = _BORDER[-1] = _BORDER[:, 0] = _BORDER[:, -1] = True
+
+
+def look_row(rel: np.ndarray, nat: np.ndarray, prev_rel: Optional[np.ndarray]) -> np.ndarray:
+    """[len(LOOK_FEATURES)] from patches [PATCH_PX, PATCH_PX] uint8 (target_patch): the box-scaled one,
+    the native one, and the lock's previous box-scaled one (None on the lock's first frame)."""
     import cv2
 
-    p = rel.astype(np.float32)
-    n = len(p)
-    border = np.concatenate([p[:, 0, :], p[:, -1, :], p[:, 1:-1, 0], p[:, 1:-1, -1]], 1)
-    bg = np.median(border, 1)
-    noise = border.std(1)
     c = PATCH_PX // 2
-    sign = np.where(p[:, c - 2:c + 2, c - 2:c + 2].mean((1, 2)) >= bg, 1.0, -1.0).astype(np.float32)
-    a = np.maximum(0.0, sign[:, None, None] * (p - bg[:, None, None]))
-    peak = a[:, c // 2:c + c // 2, c // 2:c + c // 2].max((1, 2))
-    on = (a >= 0.5 * peak[:, None, None]) & (peak[:, None, None] > 0)
-    w = a * on
-    m = w.sum((1, 2)) + 1e-6
-    ys, xs = np.mgrid[0:PATCH_PX, 0:PATCH_PX].astype(np.float32)
-    mx = (w * xs).sum((1, 2)) / m
-    my = (w * ys).sum((1, 2)) / m
-    dx, dy = xs[None] - mx[:, None, None], ys[None] - my[:, None, None]
-    cxx, cyy, cxy = ((w * dx * dx).sum((1, 2)) / m, (w * dy * dy).sum((1, 2)) / m, (w * dx * dy).sum((1, 2)) / m)
+    p = rel.astype(np.float32)
+    border = p[_BORDER]
+    bg, noise = float(np.median(border)), float(border.std())
+    # the target's polarity from its centre: warm on cold sky, or dark on bright
+    sign = 1.0 if float(p[c - 2:c + 2, c - 2:c + 2].mean()) >= bg else -1.0
+    a = np.maximum(sign * (p - bg), 0.0)
+    peak = float(a[c // 2:c + c // 2, c // 2:c + c // 2].max())
+    area, cxx, cyy, cxy = 0, 0.0, 0.0, 0.0
+    if peak > 0:
+        on = a >= 0.5 * peak
+        area = int(np.count_nonzero(on))
+        m = cv2.moments(np.where(on, a, 0.0).astype(np.float32))
+        m00 = m["m00"] + 1e-6
+        cxx, cyy, cxy = m["mu20"] / m00, m["mu02"] / m00, m["mu11"] / m00
     disc = np.sqrt((cxx - cyy) ** 2 / 4.0 + cxy ** 2)
-    l1, l2 = (cxx + cyy) / 2.0 + disc, np.maximum(0.0, (cxx + cyy) / 2.0 - disc)
+    l1, l2 = (cxx + cyy) / 2.0 + disc, max(0.0, (cxx + cyy) / 2.0 - disc)
     aniso = (l1 - l2) / (l1 + l2 + 1e-6)
     theta2 = np.arctan2(2.0 * cxy, cxx - cyy)
-    q = prev_rel.astype(np.float32)
-    pz, qz = p - p.mean((1, 2))[:, None, None], q - q.mean((1, 2))[:, None, None]
-    ncc = (pz * qz).sum((1, 2)) / np.sqrt((pz * pz).sum((1, 2)) * (qz * qz).sum((1, 2)) + 1e-6)
-    ncc = np.where(has_prev, ncc, 0.0)
-    sharp = np.zeros(n, np.float32)
-    for i in range(n):
-        lap = cv2.Laplacian(nat[i], cv2.CV_32F)
-        sharp[i] = np.abs(lap[c - 4:c + 4, c - 4:c + 4]).mean() / (float(nat[i].std()) + 4.0)
-    out = np.stack([np.log2(on.sum((1, 2)) + 1.0), aniso, aniso * np.cos(theta2), aniso * np.sin(theta2),
-                    np.log1p(peak / (noise + 4.0)), ncc, sharp], 1)
-    return out.astype(np.float32)
+    ncc = 0.0
+    if prev_rel is not None:
+        q = prev_rel.astype(np.float32)
+        pz, qz = p - p.mean(), q - q.mean()
+        ncc = float((pz * qz).sum() / np.sqrt((pz * pz).sum() * (qz * qz).sum() + 1e-6))
+    lap = cv2.Laplacian(nat, cv2.CV_32F)
+    sharp = float(np.abs(lap[c - 4:c + 4, c - 4:c + 4]).mean()) / (float(nat.std()) + 4.0)
+    return np.array([np.log2(area + 1.0), aniso, aniso * np.cos(theta2), aniso * np.sin(theta2),
+                     np.log1p(peak / (noise + 4.0)), ncc, sharp], np.float32)
