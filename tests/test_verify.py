@@ -148,10 +148,11 @@ def test_verifier_with_a_feature_count_of_neither_kind_is_refused_in_one_line(tm
     from payload.detect.verify import N_LOOK
 
     path = last_row_verifier(tmp_path / "v.onnx", P, features=N_FEATURES + N_LOOK + 1)
-    model = OnnxModel(path, expected_inputs={"tracks": (None, None, None)})
+    cfg = config_with(Config(), **{"detector.verifier.model": path})
     with pytest.raises(ModelError) as err:
-        check_verifier(model)
+        build_detectors(cfg.detector)
     msg = str(err.value)
+    assert msg.startswith("detector.verifier.model: %s: " % path)  # the field and the file
     assert "[N, T, %d or %d]" % (N_FEATURES, N_FEATURES + N_LOOK) in msg and "\n" not in msg
 
 

@@ -106,7 +106,7 @@ class AppearanceDetector:
         if out.ndim != 4 or out.shape[1] != 5 or self.input_wh[1] % out.shape[2] or self.input_wh[0] % out.shape[3]:
             raise ModelError(
                 "%s: expected output [N,5,H/s,W/s] for input %dx%d, found %s"
-                % (model.path, self.input_wh[0], self.input_wh[1], list(out.shape))
+                % (model.where, self.input_wh[0], self.input_wh[1], list(out.shape))
             )
 
     def update_config(self, cfg: AppearanceConfig) -> None:

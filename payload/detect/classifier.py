@@ -28,7 +28,7 @@ class AppearanceClassifier:
         self._input_name = next(iter(model.input_shapes))
         out = model.run({self._input_name: np.zeros((2, 3, PATCH_PX, PATCH_PX), np.float32)})[0]
         if out.shape != (2, 2):
-            raise ModelError("%s: expected output [N,2] (clutter, drone probabilities), found %s" % (model.path, list(out.shape)))
+            raise ModelError("%s: expected output [N,2] (clutter, drone probabilities), found %s" % (model.where, list(out.shape)))
 
     def update_config(self, cfg: ClassifierConfig) -> None:
         """Hot reload: the threshold."""

@@ -83,7 +83,7 @@ def check_verifier(model: OnnxModel) -> None:
     window, features = shape[1], shape[2]
     if not (isinstance(window, int) and window > 0 and features in (N_FEATURES, N_FEATURES + N_LOOK)):
         raise ModelError("%s: expected input [N, T, %d or %d] (T frames of the lock's rows, with or without the "
-                         "look of its pixels), found %s" % (model.path, N_FEATURES, N_FEATURES + N_LOOK, list(shape)))
+                         "look of its pixels), found %s" % (model.where, N_FEATURES, N_FEATURES + N_LOOK, list(shape)))
     out = model.run({next(iter(model.input_shapes)): np.zeros((1, window, features), np.float32)})[0]
     if out.size != 1:
-        raise ModelError("%s: expected output [N, 1] (drone probability), found %s" % (model.path, list(out.shape)))
+        raise ModelError("%s: expected output [N, 1] (drone probability), found %s" % (model.where, list(out.shape)))

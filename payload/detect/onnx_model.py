@@ -131,7 +131,8 @@ class OnnxModel:
     ) -> None:
         expected_inputs = {"images": 3} if expected_inputs is None else dict(expected_inputs)
         self.path = path
-        where = "%s: %s" % (config_key, path)
+        # the config field and the file, for every message about this model (contract checks included)
+        self.where = where = "%s: %s" % (config_key, path)
         if not os.path.isfile(path):
             raise ModelError("%s: no such model file" % where)
         ort = _ort()
@@ -195,7 +196,7 @@ class OnnxModel:
             self.session.run(None, feeds)
         except Exception as exc:
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise ModelError("%s: warm-up inference failed: %s" % (self.path, first[:200])) from None
+            raise ModelError("%s: warm-up inference failed: %s" % (self.where, first[:200])) from None
 
     def run(self, feeds: Dict[str, np.ndarray]) -> List[np.ndarray]:
         return self.session.run(None, feeds)
