@@ -23,6 +23,7 @@ import logging
 from collections import deque
 from typing import Optional, Tuple
 
+import cv2
 import numpy as np
 
 from payload.types import GAD, GMD, LAD, LMD
@@ -45,6 +46,16 @@ FEATURES = (
     "motion_valid",  # the previous frame and its camera motion were known
 )
 N_FEATURES = len(FEATURES)
+# after FEATURES where the network asks for them (its F = N_FEATURES + N_LOOK): the target's own pixels
+LOOK_FEATURES = (
+    "look_log_area",  # log2 of the target's pixels (at half its peak) in the box-scaled patch
+    "look_aniso",  # (l1 - l2) / (l1 + l2) of their second moments: 0 round, 1 a line
+    "look_cos2", "look_sin2",  # their orientation (2 theta), scaled by the anisotropy
+    "look_peak",  # log1p of the peak against the patch border's spread
+    "look_ncc",  # normalised correlation with the lock's previous patch (0: none)
+    "look_sharp",  # mean |Laplacian| at the centre of the native patch against its spread: rotor blur
+)
+N_LOOK = len(LOOK_FEATURES)
 _MODULES = (GAD, GMD, LAD, LMD)
 
 
@@ -113,8 +124,6 @@ def target_patch(grey: np.ndarray, box: np.ndarray, native: bool = False) -> np.
     """The target's own pixels: PATCH_PX x PATCH_PX uint8 grey around the box's centre, of a square
     twice the box's larger side (at least PATCH_PX / 2 px), or with ``native`` of the frame's own
     pixels; the frame's edge repeated where the square leaves it."""
-    import cv2
-
     H, W = grey.shape[:2]
     cx = min(W - 1.0, max(0.0, (box[0] + box[2]) / 2.0))
     cy = min(H - 1.0, max(0.0, (box[1] + box[3]) / 2.0))
@@ -173,11 +182,11 @@ class LockVerifier:
                  enabled: bool = True, window: int = 16) -> None:
         self.model = model
         self._input_name = None
+        self.n_features = N_FEATURES
         if model is not None:
             self._input_name, shape = next(iter(model.input_shapes.items()))
-            window = int(shape[1])
+            window, self.n_features = int(shape[1]), int(shape[2])
         self.window = window
-        self.n_features = int(shape[2]) if model is not None else N_FEATURES
         self.features = LockFeatures(look=self.n_features == N_FEATURES + N_LOOK)
         self.rows: deque = deque(maxlen=window)
         self.update_config(min_frames, threshold, release_threshold, enabled)
@@ -224,18 +233,6 @@ class LockVerifier:
         return out
 
 
-LOOK_FEATURES = (
-    "look_log_area",  # log2 of the target's pixels (at half its peak) in the box-scaled patch
-    "look_aniso",  # (l1 - l2) / (l1 + l2) of their second moments: 0 round, 1 a line
-    "look_cos2", "look_sin2",  # their orientation (2 theta), scaled by the anisotropy
-    "look_peak",  # log1p of the peak against the patch border's spread
-    "look_ncc",  # normalised correlation with the lock's previous patch (0: none)
-    "look_sharp",  # mean |Laplacian| at the centre of the native patch against its spread: rotor blur
-)
-
-
-N_LOOK = len(LOOK_FEATURES)
-
 
 _BORDER = np.zeros((PATCH_PX, PATCH_PX), bool)
 _BORDER[0] = _BORDER[-1] = _BORDER[:, 0] = _BORDER[:, -1] = True
@@ -244,8 +241,6 @@ _BORDER[0] = _BORDER[-1] = _BORDER[:, 0] = _BORDER[:, -1] = True
 def look_row(rel: np.ndarray, nat: np.ndarray, prev_rel: Optional[np.ndarray]) -> np.ndarray:
     """[len(LOOK_FEATURES)] from patches [PATCH_PX, PATCH_PX] uint8 (target_patch): the box-scaled one,
     the native one, and the lock's previous box-scaled one (None on the lock's first frame)."""
-    import cv2
-
     c = PATCH_PX // 2
     p = rel.astype(np.float32)
     border = p[_BORDER]
