@@ -25,11 +25,10 @@ from typing import Dict, List
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from payload.detect.verify import FEATURES, LOOK_FEATURES, N_FEATURES, PATCH_PX, look_row  # noqa: E402
+from payload.detect.verify import FEATURES, LOOK_FEATURES, N_FEATURES, look_row  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from training.mine_tracks import fold_of  # noqa: E402
 
-LOOK_CODE = 8  # features the patch encoder gives each frame (--look-cnn)
 WINDOW = 32  # the shipped verifier's T (16 until 2026-12-04: docs/results.md)
 GROUPS = ("visible drones", "thermal drones", "visible negatives", "thermal negatives", "synthetic drones",
           "tiny light drones", "synthetic empty")
@@ -51,15 +50,9 @@ def with_look(c) -> np.ndarray:
     return np.concatenate([c["rows"], np.asarray(look, np.float32).reshape(len(rel), len(LOOK_FEATURES))], 1)
 
 
-PATCHES = None  # with --look-cnn: every mined patch [M + 1, PATCH_PX**2] float32, the last one zero (padding)
-
-
-def load(tracks_dir: str, window: int = WINDOW, look: bool = False, look_cnn: bool = False) -> List[Dict]:
-    global PATCHES
+def load(tracks_dir: str, window: int = WINDOW, look: bool = False) -> List[Dict]:
     folds = load_folds()
     clips = []
-    patches = []
-    offset = 0
     for path in sorted(glob.glob(os.path.join(tracks_dir, "*.npz"))):
         name = os.path.basename(path)[:-4]
         if name.endswith(".tmp"):
@@ -70,34 +63,11 @@ def load(tracks_dir: str, window: int = WINDOW, look: bool = False, look_cnn: bo
         c["label"] = frame_labels(c)
         if look:
             c["rows"] = with_look(c)
-        if look_cnn:  # one more column: the row's patch, as its index into PATCHES
-            n = len(c["rows"])
-            c["rows"] = np.concatenate([c["rows"], (offset + np.arange(n, dtype=np.float32))[:, None]], 1)
-            patches.append(c["patch_rel"].reshape(n, PATCH_PX ** 2).astype(np.float32))
-            offset += n
         c["windows"] = windows(c["rows"], c["lock"], window)
-        if look_cnn:
-            c["windows"][c["windows"][:, :, 0] == 0, -1] = -1  # padding: the zero patch
         for k in ("patch_rel", "patch_nat"):
             c.pop(k, None)
         clips.append(c)
-    if look_cnn:
-        patches.append(np.zeros((1, PATCH_PX ** 2), np.float32))
-        PATCHES = np.concatenate(patches)
     return clips
-
-
-def expand(xb):
-    """A batch of windows (torch) with the patch index column replaced by the patches' pixels."""
-    if PATCHES is None:
-        return xb
-    import torch
-
-    global _PATCHES_T
-    if "_PATCHES_T" not in globals() or _PATCHES_T.shape[0] != PATCHES.shape[0]:
-        _PATCHES_T = torch.from_numpy(PATCHES)
-    idx = xb[:, :, -1].long()
-    return torch.cat([xb[:, :, :-1], _PATCHES_T[idx]], 2)
 
 
 def frame_labels(c) -> np.ndarray:
@@ -147,11 +117,8 @@ def positions(lock: np.ndarray) -> np.ndarray:
 
 # --- the network --------------------------------------------------------------------------------
 
-def build_net(mean: np.ndarray, std: np.ndarray, patch_px: int = 0):
-    """``patch_px``: each row is followed by the target's patch (patch_px x patch_px grey, 0-255),
-    which a small convolutional encoder turns into LOOK_CODE features of the frame."""
-    n_rows = len(mean)
-    n_in = n_rows + (LOOK_CODE if patch_px else 0)
+def build_net(mean: np.ndarray, std: np.ndarray):
+    n_in = len(mean)
     import torch
     from torch import nn
 
@@ -166,23 +133,10 @@ def build_net(mean: np.ndarray, std: np.ndarray, patch_px: int = 0):
                 nn.Conv1d(n_in, 24, 3, padding=1), nn.ReLU(),
                 nn.Conv1d(24, 24, 3, padding=1), nn.ReLU())
             self.head = nn.Sequential(nn.Linear(48, 16), nn.ReLU(), nn.Linear(16, 1))
-            if patch_px:
-                self.encoder = nn.Sequential(
-                    nn.Conv2d(2, 8, 3, stride=2, padding=1), nn.ReLU(),
-                    nn.Conv2d(8, 16, 3, stride=2, padding=1), nn.ReLU(),
-                    nn.Flatten(), nn.Linear(16 * (patch_px // 4) ** 2, LOOK_CODE))
 
         def forward(self, tracks):  # [N, T, F]
             present = tracks[:, :, :1]
-            x = (tracks[:, :, :n_rows] - self.mean) / self.std * present  # padding rows stay zero
-            if patch_px:
-                n, t = tracks.shape[0], tracks.shape[1]
-                p = tracks[:, :, n_rows:]
-                z = (p - p.mean(2, keepdim=True)) / (p.std(2, keepdim=True) + 4.0) * present
-                prev = torch.cat([torch.zeros_like(z[:, :1]), z[:, :-1]], 1)
-                pair = torch.stack([z, z - prev], 2).reshape(-1, 2, patch_px, patch_px)
-                code = self.encoder(pair).reshape(n, t, LOOK_CODE) * present
-                x = torch.cat([x, code], 2)
+            x = (tracks - self.mean) / self.std * present  # padding rows stay zero
             h = self.conv(x.transpose(1, 2)).transpose(1, 2) * present  # [N, T, 24]
             count = present.sum(1).clamp(min=1.0)
             mean_h = h.sum(1) / count
@@ -221,16 +175,14 @@ def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, lo
     flat = x[present]
     mean, std = flat.mean(0), flat.std(0) + 1e-3
     mean[0], std[0] = 0.0, 1.0
-    if PATCHES is not None:  # the last column is the patch's index
-        mean, std = mean[:-1], std[:-1]
-    net = build_net(mean, std, PATCH_PX if PATCHES is not None else 0)
+    net = build_net(mean, std)
     opt = torch.optim.AdamW(net.parameters(), lr=3e-3, weight_decay=1e-3)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=3e-3, total_steps=steps)
     p = w / w.sum()
     xt, yt = torch.from_numpy(x), torch.from_numpy(y.astype(np.float32))
     for step in range(steps):
         idx = torch.from_numpy(rng.choice(len(x), 256, p=p))
-        xb = expand(xt[idx])
+        xb = xt[idx]
         # drop the oldest frames at random: the verifier must judge young locks too
         window = xb.shape[1]
         keep = torch.from_numpy(rng.integers(4, window + 1, size=len(idx)))
@@ -252,7 +204,7 @@ def predict(net, x: np.ndarray) -> np.ndarray:
     import torch
 
     with torch.no_grad():
-        return np.concatenate([net(expand(torch.from_numpy(x[i:i + 8192]))).numpy()[:, 0]
+        return np.concatenate([net(torch.from_numpy(x[i:i + 8192])).numpy()[:, 0]
                                for i in range(0, len(x), 8192)]) if len(x) else np.zeros(0, np.float32)
 
 
@@ -377,8 +329,6 @@ def main():
     ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
     ap.add_argument("--max-loss", type=float, default=0.05, help="centre-F each drone group may lose to the verifier")
     ap.add_argument("--look", action="store_true", help="append the look features of the target's patches")
-    ap.add_argument("--look-cnn", action="store_true", help="the target's patches through a small encoder")
-    ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--export", default=None, help="also train on every clip and write this ONNX file")
     args = ap.parse_args()
     if args.members < 1:
@@ -387,10 +337,10 @@ def main():
         raise SystemExit("--window %d: expected at least 4 (a lock is judged from its 4th frame)" % args.window)
     import torch
 
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(1)
     os.makedirs(args.out, exist_ok=True)
     t0 = time.time()
-    clips = load(args.tracks, args.window, args.look, args.look_cnn)
+    clips = load(args.tracks, args.window, args.look)
     print("clips %d, lock frames %d (%.0f s)" % (len(clips), sum(len(c["rows"]) for c in clips), time.time() - t0))
     k = max(c["fold"] for c in clips) + 1
     prob = {}
@@ -403,7 +353,8 @@ def main():
             if c["fold"] == fold:
                 prob[c["name"]] = predict(net, c["windows"])
     folds = [[c for c in clips if c["fold"] == f] for f in range(k)]
-    report = {"features": list(FEATURES) + (list(LOOK_FEATURES) if args.look else []), "window": args.window, "steps": args.steps, "members": args.members, "rules": {}}
+    report = {"features": list(FEATURES) + (list(LOOK_FEATURES) if args.look else []), "window": args.window,
+              "steps": args.steps, "members": args.members, "rules": {}}
     base = [score(fc, {c["name"]: replay(c, None, 0, 0, 0, use_verifier=False) for c in fc}) for fc in folds]
     print("\nLockCheck only (what GLAD reports today):\n" + fmt(base))
     report["rules"]["lockcheck"] = base
@@ -423,8 +374,7 @@ def main():
     if args.export:
         x, y, w = examples(clips)
         net = train_members(x, y, w, args.steps, args.seed + 100, args.members)
-        export(net, args.export, args.window, clips[0]["rows"].shape[1] - 1 + PATCH_PX ** 2 if args.look_cnn
-               else clips[0]["rows"].shape[1])
+        export(net, args.export, args.window, clips[0]["rows"].shape[1])
         print("wrote %s" % args.export)
     print("done in %.0f s" % (time.time() - t0))
 
