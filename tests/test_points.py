@@ -108,23 +108,25 @@ def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points
     assert all(np.allclose(r.target.xyxy, [999, 599, 1005, 605], atol=3) for r in after)
 
 
-def test_the_spot_cue_covers_twice_the_networks_tiles(tmp_path):
-    # issue 19: the scan's network runs on tiles_per_frame tiles, the spot cue (a quarter of its cost
-    # a tile) on twice as many, in its own turn: the spot is reached in half the scans
+@pytest.mark.parametrize("xy", [(1000, 600), (0, 0), (1276, 764), (640, 0)])
+def test_the_spot_look_covers_the_whole_frame_in_its_turn(tmp_path, xy):
+    # the spots are a global look of their own over the whole frame (a 1080p frame in ~10 ms): a
+    # spot anywhere, the frame's corners and edges included, is found in the spots' first turn, where
+    # on the scan's tiles it waited its tile's turn (one scan in 24 global frames on 1080p)
     from test_pipeline import _spot_glad
-
-    from payload.boxes import tiles_xyxy
 
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
                                    "detector.global.scan.tiles_per_frame": 1,
                                    "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it
                                    "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    tiles = tiles_xyxy((1280, 768), (320, 320))
-    k = next(i for i, (x1, y1, x2, y2) in enumerate(tiles) if x1 <= 1000 and 1004 <= x2 and y1 <= 600 and 604 <= y2)
-    assert k >= 8  # far down the turn: the network alone would reach it on scan k + 1
-    first = next(i for i in range(40) if len(glad.process(_grey_spot_frame(i)).detections))
-    # GAD and the scan take turns (global motion off): scan n (from 1) is frame 2n - 1
-    assert first == 2 * (k // 2 + 1) - 1
+    results = [glad.process(_grey_spot_frame(i, xy=xy)) for i in range(3)]
+    # GAD, the scan and the spots take turns (global motion off): the spots' first turn is frame 2
+    assert [len(r.detections) for r in results] == [0, 0, 1]
+    assert [[m for m in ("GAD", "scan", "points") if m in r.timings_ms] for r in results] == [
+        ["GAD"], ["scan"], ["points"]]
+    hit = results[2].detections
+    assert list(hit.module) == ["GAD"] and results[2].mode == "global"
+    assert hit.xyxy[0].tolist() == [xy[0] - 1, xy[1] - 1, xy[0] + 5, xy[1] + 5]  # the spot and a pixel around it
 
 
 def test_no_spots_where_the_global_input_keeps_most_of_the_resolution(tmp_path):
@@ -164,3 +166,20 @@ def test_a_bad_points_setting_is_one_line_naming_it(tmp_path, value, expected):
     line = problems[0]
     assert "\n" not in line and line.startswith(str(path) + ":")
     assert line.endswith(expected), line
+
+
+@pytest.mark.parametrize("background, ring_peak, spot, isolated", [
+    (100, 10, 21, True), (100, 10, 20, False),  # 21 / (10 + 4) = 1.5 exactly: at the bar
+    (100, 11, 23, True), (100, 11, 22, False),  # the bar 22.5: rounded up, not to the nearest
+    (0, 166, 255, True), (0, 167, 255, False),  # a bar beyond 255 (256.5) is not met by 255
+])
+def test_the_8_bit_isolation_bar_is_the_rule_exactly(background, ring_peak, spot, isolated):
+    # the detector compares in 8 bit (a whole 1080p frame in ~10 ms): a spot is isolated when its
+    # response is at least 1.5 x (the ring's largest + 4), to the grey level, up to the top of the range
+    image = np.full((60, 60), background, np.uint8)
+    image[30, 30] = background + spot
+    image[38, 38] = background + ring_peak  # 8 px off on the diagonal: in the spot's ring, and the spot in its
+    found = PointDetector().detect(image)
+    assert _centres(found) == ([(30, 30)] if isolated else [])
+    if isolated:
+        assert found.score[0] == pytest.approx(1.0 - (ring_peak + 4.0) / spot)

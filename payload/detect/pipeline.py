@@ -3,9 +3,9 @@
 Per frame, chosen by each target's switcher:
 - global: appearance (GAD) on the down-scaled full frame; only if it finds nothing, motion
   (GMD) on the full frame, its candidates checked by the 32x32 classifier. On a frame GAD
-  down-scales strongly (1080p) there is a third look, GAD's at native resolution: the local
+  down-scales strongly (1080p) there are two more looks at native resolution: the local
   detector on a few tiles of the frame in turn (payload.detect.scan), and isolated 2-8 px spots
-  on twice as many (payload.detect.points); there the three looks take turns, one a global
+  over the whole frame (payload.detect.points); there the four looks take turns, one a global
   frame, so that a searching frame costs what one look costs (issue 19's time budget);
 - local: appearance (LAD) inside the target's search region at native resolution; only if it
   finds nothing, motion (LMD) inside the region, checked by the classifier; on frames the scan
@@ -49,8 +49,8 @@ from payload.detect.switcher import GLOBAL, LOCAL
 from payload.detect.tracks import Track, TrackedTarget, is_far, merge_overlapping, overlap, primary_of
 from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
 
-SCAN = "scan"  # the global stage's third look (payload.detect.scan)
-SPOT_TILES_PER_TILE = 2  # the scan's spot cue (payload.detect.points) covers this many tiles per network tile
+SCAN = "scan"  # the global stage's native-resolution looks: the local network on tiles (payload.detect.scan)
+POINTS = "points"  # ... and isolated spots over the whole frame (payload.detect.points)
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +106,6 @@ class Glad:
         self.gmd = MotionDetector(cfg.global_.motion, GMD)
         self.lmd = MotionDetector(cfg.local.motion, LMD)
         self.scan = NativeScan()
-        self.spot_scan = NativeScan()
         self.points = PointDetector()
         self.tracks: List[Track] = []  # the targets followed, oldest (lowest id) first
         self._next_id = 1
@@ -211,7 +210,6 @@ class Glad:
         self._since_search = 0
         self._turn = -1
         self.scan.reset()
-        self.spot_scan.reset()
         self._prev = self._prev_t_ns = None
 
     # --- the per-frame step -------------------------------------------------------------
@@ -319,6 +317,8 @@ class Glad:
             looks.append(GMD)
         if GAD in looks and self._scan_available(frame):
             looks.append(SCAN)
+        if GAD in looks and self.cfg.global_.scan.points and self._scanned(frame):
+            looks.append(POINTS)
         if self._scanned(frame) and len(looks) > 1:
             looks = self._spread(looks)
         if GAD in looks:
@@ -335,6 +335,15 @@ class Glad:
             # as a lock must to be reported (a synthetic gull at 0.51 took the demo's lock).
             found = keep(self._classify(frame.image, scanned, timings, threshold=max(
                 self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold)))
+        if not len(found) and POINTS in looks:
+            # a 3-6 px white drone on the sky: the networks hardly answer to it (docs/results.md,
+            # tiny light drones); the spots, like the scan's hits, need the lock bar
+            t = time.perf_counter()
+            spots = self.points.detect(grey.full)
+            _add(timings, POINTS, _ms(t))
+            candidates.append(spots)
+            found = keep(self._classify(frame.image, spots, timings, threshold=max(
+                self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold)))
         t = time.perf_counter()
         started = self._start(frame, found.sorted_by_score(), timings)
         _add(timings, "switcher", _ms(t))
@@ -342,9 +351,9 @@ class Glad:
 
     def _spread(self, looks: List[str]) -> List[str]:
         """The one look this global frame takes on a frame GAD down-scales strongly (1080p): GAD,
-        GMD and the scan in turn. All three in one frame cost ~45 ms there, beyond a 30 FPS camera's
-        33 ms; one a frame stays near the dearest one's ~15 ms. On synthetic 1080p scenes it found
-        as much as all three (docs/results.md)."""
+        GMD, the scan and the spots in turn. All in one frame cost ~55 ms there, beyond a 30 FPS
+        camera's 33 ms; one a frame stays near the dearest one's ~15 ms. On synthetic 1080p scenes
+        GAD, GMD and the scan in turn found as much as all three at once (docs/results.md)."""
         self._turn = (self._turn + 1) % len(looks)
         return [looks[self._turn]]
 
@@ -499,13 +508,6 @@ class Glad:
         parts = [lad.detect(frame.image[y1:y2, x1:x2], offset_xy=(float(x1), float(y1))) for x1, y1, x2, y2 in tiles]
         found = Detections.concat(parts)
         found = found[found.score >= self.cfg.global_.appearance.confidence]  # T0: these are GAD hits
-        if scan.points:
-            # the spot cue costs a quarter of the network a tile, so it covers twice the tiles, in its
-            # own turn: on the tiny-light scenes recall follows its coverage (docs/results.md)
-            tiles = self.spot_scan.next_tiles(frame.size_wh, lad.input_wh, SPOT_TILES_PER_TILE * scan.tiles_per_frame)
-            spots = Detections.concat([self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(float(x1), float(y1)))
-                                       for x1, y1, x2, y2 in tiles])
-            found = Detections.concat([found, _outside(spots, found)])  # where the network hit, its box stands
         timings["scan"] = _ms(t)
         return Detections(found.xyxy, found.score, np.full(len(found), GAD, "<U3"))
 
@@ -624,15 +626,6 @@ class Glad:
 def _add(timings: Dict[str, float], key: str, ms: float) -> None:
     """Add to a frame's time of ``key`` (a module may run once per target)."""
     timings[key] = timings.get(key, 0.0) + ms
-
-
-def _outside(dets: Detections, boxes: Detections) -> Detections:
-    """``dets`` whose centre lies in none of ``boxes``."""
-    if not len(dets) or not len(boxes):
-        return dets
-    c, b = dets.centers[:, None, :], boxes.xyxy[None]
-    inside = ((c[..., 0] >= b[..., 0]) & (c[..., 0] < b[..., 2]) & (c[..., 1] >= b[..., 1]) & (c[..., 1] < b[..., 3])).any(axis=1)
-    return dets[~inside]
 
 
 def _ms(t_start: float) -> float:
