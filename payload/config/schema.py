@@ -184,7 +184,7 @@ class ScanConfig(Section):
     points: bool = Field(
         True,
         description="On scanned frames, also propose isolated 2-8 px spots of either polarity (payload.detect.points): "
-                    "on twice the scan's tiles, and in the search region when LAD and LMD find nothing.",
+                    "over the whole frame in a global turn of their own, and in the search region when LAD and LMD find nothing.",
     )
 
 
