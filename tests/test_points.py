@@ -183,3 +183,82 @@ def test_the_8_bit_isolation_bar_is_the_rule_exactly(background, ring_peak, spot
     assert _centres(found) == ([(30, 30)] if isolated else [])
     if isolated:
         assert found.score[0] == pytest.approx(1.0 - (ring_peak + 4.0) / spot)
+
+
+def test_a_small_box_off_its_spot_is_moved_onto_the_spot():
+    from payload.detect.points import spot_centre
+
+    grey = _sky()[..., 0]
+    grey[100:103, 60:64] = 250  # a 4x3 px white drone: its centre (62, 101.5)
+    for box in ([58, 98, 63, 102], [61, 100, 66, 104], [60, 99, 64, 103]):  # 1-3 px off, either side
+        assert spot_centre(grey, np.float32(box)) == pytest.approx((62.0, 101.5), abs=0.05)
+    dark = _sky()[..., 0]
+    dark[50:54, 200:204] = 40  # either polarity
+    assert spot_centre(dark, np.float32([199, 49, 203, 53])) == pytest.approx((202.0, 52.0), abs=0.05)
+
+
+@pytest.mark.parametrize("box", [
+    [0, 0, 30, 30],  # larger than a spot: a network's box stays as it is
+    [np.nan, 0, 4, 4], [0, 0, np.inf, 4],  # broken numbers
+    [400, 400, 404, 404], [-20, -20, -16, -16],  # wholly outside the frame
+    [4, 4, 4, 8],  # empty
+    [150, 150, 155, 155],  # flat sky, no spot in it
+])
+def test_no_spot_centre_where_there_is_no_spot_to_move_to(box):
+    from payload.detect.points import spot_centre
+
+    grey = _sky()[..., 0]
+    grey[100:103, 60:64] = 250
+    assert spot_centre(grey, np.float32(box)) is None
+
+
+def test_no_spot_centre_in_texture():
+    from payload.detect.points import spot_centre
+
+    rng = np.random.default_rng(3)
+    grey = _sky()[..., 0]
+    grey[:, :160] = rng.integers(60, 200, (240, 160), dtype=np.uint8)  # ground: neighbours as strong
+    grey[120:124, 80:84] = 250
+    assert spot_centre(grey, np.float32([79, 119, 85, 125])) is None
+    grey[120:124, 240:244] = 250  # the same on the sky
+    assert spot_centre(grey, np.float32([239, 119, 245, 125])) == pytest.approx((242.0, 122.0), abs=0.05)
+
+
+def test_spot_centre_at_the_frames_edge():
+    from payload.detect.points import spot_centre
+
+    grey = _sky()[..., 0]
+    grey[0:3, 316:320] = 250  # in the corner
+    centre = spot_centre(grey, np.float32([315, -1, 321, 4]))
+    assert centre == pytest.approx((318.0, 1.5), abs=0.05)
+
+
+def test_glad_reports_a_small_lock_on_its_spot_and_keeps_its_own_box(tmp_path):
+    import dataclasses
+
+    import cv2
+
+    from payload.detect.ego_motion import GreyLevels
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.tiles_per_frame": 2,
+                                   "detector.local.appearance.confidence": 0.5,
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+    frame = None
+    for i in range(12):
+        frame = _grey_spot_frame(i)
+        if len(glad.process(frame).detections):
+            break
+    track = glad.tracks[0]
+    grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
+    off = track.target.xyxy + np.float32([2, -2, 2, -2])  # the network's box, 2 px off the drone
+    track.target = dataclasses.replace(track.target, xyxy=off)
+    track.detections = dataclasses.replace(track.detections, xyxy=off[None])
+    target, dets = glad._on_spot(track, grey)
+    assert target.center == pytest.approx((1002.0, 602.0), abs=0.05)  # the 4 px spot at 1000-1003, 600-603
+    assert dets.xyxy[0].tolist() == target.xyxy.tolist()
+    assert np.array_equal(track.target.xyxy, off)  # the track follows with its own box
+    coasting = dataclasses.replace(track.target, measured=False)
+    track.target = coasting
+    assert glad._on_spot(track, grey)[0] is coasting  # a prediction is not moved
