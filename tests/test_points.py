@@ -237,9 +237,9 @@ def test_glad_reports_a_small_lock_on_its_spot_and_keeps_its_own_box(tmp_path):
     import dataclasses
 
     import cv2
+    from test_pipeline import _spot_glad
 
     from payload.detect.ego_motion import GreyLevels
-    from test_pipeline import _spot_glad
 
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
                                    "detector.global.scan.tiles_per_frame": 2,
