@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from payload.detect.points import _HOLE_PX, _RING_PX, PointDetector, ring_max
+from payload.types import Detections
 
 
 def _sky(h=240, w=320, seed=0):
@@ -108,25 +109,47 @@ def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points
     assert all(np.allclose(r.target.xyxy, [999, 599, 1005, 605], atol=3) for r in after)
 
 
-@pytest.mark.parametrize("xy", [(1000, 600), (0, 0), (1276, 764), (640, 0)])
-def test_the_spot_look_covers_the_whole_frame_in_its_turn(tmp_path, xy):
-    # the spots are a global look of their own over the whole frame (a 1080p frame in ~10 ms): a
-    # spot anywhere, the frame's corners and edges included, is found in the spots' first turn, where
-    # on the scan's tiles it waited its tile's turn (one scan in 24 global frames on 1080p)
+@pytest.mark.parametrize("size_wh, xy, first", [
+    ((1280, 768), (1000, 600), 2), ((1280, 768), (0, 0), 2), ((1280, 768), (1276, 764), 2),  # one band
+    ((1920, 1080), (1000, 200), 2), ((1920, 1080), (1916, 1076), 5),  # two bands: the lower one's turn is next
+    ((1920, 1080), (960, 536), 2), ((1920, 1080), (960, 540), 5),  # either side of the cut (centre y 538, 542)
+])
+def test_the_spot_look_covers_the_whole_frame_in_its_turns(tmp_path, size_wh, xy, first):
+    # the spots are a global look of their own over the whole frame, a band of rows (at most
+    # SPOT_BAND_PX pixels: a 1080p frame in two) a turn: a spot anywhere, the frame's corners and the
+    # bands' cut included, is found in its band's first turn
     from test_pipeline import _spot_glad
 
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
                                    "detector.global.scan.tiles_per_frame": 1,
                                    "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it
                                    "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    results = [glad.process(_grey_spot_frame(i, xy=xy)) for i in range(3)]
-    # GAD, the scan and the spots take turns (global motion off): the spots' first turn is frame 2
-    assert [len(r.detections) for r in results] == [0, 0, 1]
-    assert [[m for m in ("GAD", "scan", "points") if m in r.timings_ms] for r in results] == [
+    results = [glad.process(_grey_spot_frame(i, xy=xy, size_wh=size_wh)) for i in range(first + 1)]
+    # GAD, the scan and the spots take turns (global motion off): the spots' turns are frames 2, 5, ...
+    assert [len(r.detections) for r in results] == [0] * first + [1]
+    assert [[m for m in ("GAD", "scan", "points") if m in r.timings_ms] for r in results[:3]] == [
         ["GAD"], ["scan"], ["points"]]
-    hit = results[2].detections
-    assert list(hit.module) == ["GAD"] and results[2].mode == "global"
-    assert hit.xyxy[0].tolist() == [xy[0] - 1, xy[1] - 1, xy[0] + 5, xy[1] + 5]  # the spot and a pixel around it
+    hit = results[-1].detections
+    assert list(hit.module) == ["GAD"] and results[-1].mode == "global"
+    # the spot and a pixel around it (reported on the spot's centroid: within a twentieth of a pixel)
+    assert np.allclose(hit.xyxy[0], [xy[0] - 1, xy[1] - 1, xy[0] + 5, xy[1] + 5], atol=0.05)
+
+
+def test_the_bands_find_what_the_whole_frame_gives(tmp_path):
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path)
+    glad.points = PointDetector(max_points=10_000)
+    rng = np.random.default_rng(5)
+    grey = _sky(1080, 1920, seed=5)[..., 0]
+    for x, y in zip(rng.integers(0, 1916, 400), rng.integers(0, 1076, 400)):
+        grey[y:y + 3, x:x + 3] = rng.integers(0, 256)  # spots of either polarity, some near the cut
+    grey[520:560, 100:1900:37] = 250  # a row of spots across the cut
+    whole = PointDetector(max_points=10_000).detect(grey)
+    bands = [glad._spots(grey) for _ in range(2)]
+    assert len(bands[0]) and len(bands[1])
+    by_box = lambda d: sorted(zip(map(tuple, d.xyxy.tolist()), d.score.tolist()))  # noqa: E731
+    assert by_box(Detections.concat(bands)) == by_box(whole)
 
 
 def test_no_spots_where_the_global_input_keeps_most_of_the_resolution(tmp_path):
