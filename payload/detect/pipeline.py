@@ -5,8 +5,9 @@ Per frame, chosen by each target's switcher:
   (GMD) on the full frame, its candidates checked by the 32x32 classifier. On a frame GAD
   down-scales strongly (1080p) there are two more looks at native resolution: the local
   detector on a few tiles of the frame in turn (payload.detect.scan), and isolated 2-8 px spots
-  over the whole frame (payload.detect.points); there the four looks take turns, one a global
-  frame, so that a searching frame costs what one look costs (issue 19's time budget);
+  over the whole frame, a band of rows a turn (payload.detect.points); there the four looks
+  take turns, one a global frame, so that a searching frame costs what one look costs (issue
+  19's time budget);
 - local: appearance (LAD) inside the target's search region at native resolution; only if it
   finds nothing, motion (LMD) inside the region, checked by the classifier; on frames the scan
   searches, then isolated spots in the region, checked by the classifier.
@@ -44,7 +45,7 @@ from payload.config import DetectorConfig, section_changes
 from payload.detect.ego_motion import CameraMotion, EgoMotion, GreyLevels
 from payload.detect.factory import DetectorModels, build_detectors
 from payload.detect.motion import MotionDetector
-from payload.detect.points import _RING_PX, PointDetector, spot_centre
+from payload.detect.points import PointDetector, spot_centre
 from payload.detect.scan import NativeScan
 from payload.detect.switcher import GLOBAL, LOCAL
 from payload.detect.tracks import Track, TrackedTarget, is_far, merge_overlapping, overlap, primary_of
@@ -54,9 +55,6 @@ SCAN = "scan"  # the global stage's native-resolution looks: the local network o
 POINTS = "points"  # ... and isolated spots over the whole frame (payload.detect.points), a band a turn
 # at most this many pixels a band (a 1080p frame in two, 1280x720 whole): ~6 ms on one core
 SPOT_BAND_PX = 1_100_000
-# a band's rows reach this far beyond its own, so that its pixels' rings (12 px) of top-hats (an 11 px
-# opening or closing: 10 px) are the whole frame's
-SPOT_MARGIN_PX = _RING_PX // 2 + 10
 
 log = logging.getLogger(__name__)
 
@@ -264,9 +262,9 @@ class Glad:
         judged = primary if primary is not None else (self.tracks[0] if self.tracks else None)
         if judged is not None:
             lock_p = judged.verifier.probability
-        t = time.perf_counter()
+        t_shown = time.perf_counter()
         shown = {t.id: self._on_spot(t, grey) for t in reported}
-        _add(timings, "switcher", _ms(t))
+        _add(timings, "switcher", _ms(t_shown))
         targets = tuple(TrackedTarget(t.id, *shown[t.id], t is primary, t.designated, t.verifier.probability)
                         for t in reported)
         if len(reported) > 1:
@@ -547,8 +545,9 @@ class Glad:
         k = self._spot_band % bands
         self._spot_band = (k + 1) % bands
         y0, y1 = h * k // bands, h * (k + 1) // bands
-        top = max(0, y0 - SPOT_MARGIN_PX)
-        found = self.points.detect(grey[top:min(h, y1 + SPOT_MARGIN_PX)], offset_xy=(0.0, float(top)))
+        margin = self.points.margin_px
+        top = max(0, y0 - margin)
+        found = self.points.detect(grey[top:min(h, y1 + margin)], offset_xy=(0.0, float(top)))
         if not len(found):
             return found
         cy = found.centers[:, 1]

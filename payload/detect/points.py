@@ -49,6 +49,9 @@ class PointDetector:
     def __init__(self, kernel_px: int = 11, min_contrast: float = 8.0, min_isolation: float = 1.5,
                  max_points: int = 8) -> None:
         self.kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (kernel_px, kernel_px))
+        # rows or columns a crop needs beyond the pixels it answers for, so that they get the whole
+        # image's answer: the ring (12 px) of top-hats (an opening or closing: twice half the kernel)
+        self.margin_px = _RING_PX // 2 + 2 * (kernel_px // 2)
         self.min_contrast, self.min_isolation = float(min_contrast), float(min_isolation)
         self.max_points = int(max_points)
 
