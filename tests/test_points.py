@@ -209,8 +209,7 @@ def test_the_8_bit_isolation_bar_is_the_rule_exactly(background, ring_peak, spot
 
 
 def test_a_small_box_off_its_spot_is_moved_onto_the_spot():
-    from payload.detect.points import spot_centre
-
+    spot_centre = PointDetector().centre
     grey = _sky()[..., 0]
     grey[100:103, 60:64] = 250  # a 4x3 px white drone: its centre (62, 101.5)
     for box in ([58, 98, 63, 102], [61, 100, 66, 104], [60, 99, 64, 103]):  # 1-3 px off, either side
@@ -228,16 +227,14 @@ def test_a_small_box_off_its_spot_is_moved_onto_the_spot():
     [150, 150, 155, 155],  # flat sky, no spot in it
 ])
 def test_no_spot_centre_where_there_is_no_spot_to_move_to(box):
-    from payload.detect.points import spot_centre
-
+    spot_centre = PointDetector().centre
     grey = _sky()[..., 0]
     grey[100:103, 60:64] = 250
     assert spot_centre(grey, np.float32(box)) is None
 
 
 def test_no_spot_centre_in_texture():
-    from payload.detect.points import spot_centre
-
+    spot_centre = PointDetector().centre
     rng = np.random.default_rng(3)
     grey = _sky()[..., 0]
     grey[:, :160] = rng.integers(60, 200, (240, 160), dtype=np.uint8)  # ground: neighbours as strong
@@ -248,8 +245,7 @@ def test_no_spot_centre_in_texture():
 
 
 def test_spot_centre_at_the_frames_edge():
-    from payload.detect.points import spot_centre
-
+    spot_centre = PointDetector().centre
     grey = _sky()[..., 0]
     grey[0:3, 316:320] = 250  # in the corner
     centre = spot_centre(grey, np.float32([315, -1, 321, 4]))

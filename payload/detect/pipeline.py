@@ -45,7 +45,7 @@ from payload.config import DetectorConfig, section_changes
 from payload.detect.ego_motion import CameraMotion, EgoMotion, GreyLevels
 from payload.detect.factory import DetectorModels, build_detectors
 from payload.detect.motion import MotionDetector
-from payload.detect.points import PointDetector, spot_centre
+from payload.detect.points import PointDetector
 from payload.detect.scan import NativeScan
 from payload.detect.switcher import GLOBAL, LOCAL
 from payload.detect.tracks import Track, TrackedTarget, is_far, merge_overlapping, overlap, primary_of
@@ -276,15 +276,14 @@ class Glad:
             timings, following=primary is None and bool(self.tracks), lock_p=lock_p, degraded=self._degraded,
             targets=targets)
 
-    @staticmethod
-    def _on_spot(track: Track, grey: GreyLevels) -> Tuple[Target, Detections]:
+    def _on_spot(self, track: Track, grey: GreyLevels) -> Tuple[Target, Detections]:
         """The track's target and detections as reported: a small measured box moved onto the centre
-        of the isolated spot in it (payload.detect.points.spot_centre; a 3-6 px drone's network box
+        of the isolated spot in it (payload.detect.points.PointDetector.centre; a 3-6 px drone's network box
         sits a pixel or three off it), else as they are. The track keeps its own box."""
         target, dets = track.target, track.detections
         if not target.measured or not len(dets):
             return target, dets
-        centre = spot_centre(grey.full, target.xyxy)
+        centre = self.points.centre(grey.full, target.xyxy)
         if centre is None:
             return target, dets
         dx, dy = centre[0] - target.center[0], centre[1] - target.center[1]

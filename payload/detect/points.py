@@ -93,39 +93,38 @@ class PointDetector:
         score = 1.0 - 1.0 / np.asarray(scores, np.float32)[order]
         return Detections(xyxy, score, module)
 
-
-def spot_centre(grey: np.ndarray, xyxy, kernel_px: int = 11, min_contrast: float = 8.0,
-                min_isolation: float = 1.5, margin_px: int = 2) -> Optional[Tuple[float, float]]:
-    """The centre of the isolated spot in a small box (at most ``kernel_px``), or None where there is
-    none: the response-weighted centroid of the box's pixels (grown by ``margin_px``) at half its
-    peak or more, on the same top-hat / black-hat response as PointDetector, the spot standing out
-    from a ring around it as there. A 3-6 px drone's network box is placed on a 4-8 px grid; its
-    pixels say where it is to a fraction of one."""
-    x1, y1, x2, y2 = (float(v) for v in xyxy)
-    if not np.isfinite([x1, y1, x2, y2]).all() or max(x2 - x1, y2 - y1) > kernel_px or x2 <= x1 or y2 <= y1:
-        return None
-    h, w = grey.shape[:2]
-    pad = kernel_px // 2 + _RING_PX // 2
-    ix1, iy1 = int(np.floor(x1)) - margin_px, int(np.floor(y1)) - margin_px
-    ix2, iy2 = int(np.ceil(x2)) + margin_px, int(np.ceil(y2)) + margin_px
-    wx1, wy1, wx2, wy2 = max(0, ix1 - pad), max(0, iy1 - pad), min(w, ix2 + pad), min(h, iy2 + pad)
-    ix1, iy1, ix2, iy2 = max(ix1, wx1), max(iy1, wy1), min(ix2, wx2), min(iy2, wy2)
-    if ix2 <= ix1 or iy2 <= iy1:
-        return None
-    window = grey[wy1:wy2, wx1:wx2]
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (kernel_px, kernel_px))
-    top = cv2.morphologyEx(window, cv2.MORPH_TOPHAT, kernel).astype(np.float32)
-    black = cv2.morphologyEx(window, cv2.MORPH_BLACKHAT, kernel).astype(np.float32)
-    inner = np.s_[iy1 - wy1:iy2 - wy1, ix1 - wx1:ix2 - wx1]
-    response = top if top[inner].max() >= black[inner].max() else black  # the spot's polarity
-    peak = float(response[inner].max())
-    outside = response.copy()
-    outside[inner] = 0.0
-    if peak < min_contrast or peak < min_isolation * (float(outside.max()) + 4.0):
-        return None
-    part = response[inner]
-    weight = np.where(part >= 0.5 * peak, part, 0.0)
-    ys, xs = np.mgrid[iy1:iy2, ix1:ix2]
-    total = float(weight.sum())
-    # pixel (x, y) covers [x, x + 1): its centre is x + 0.5
-    return float((weight * xs).sum() / total + 0.5), float((weight * ys).sum() / total + 0.5)
+    def centre(self, grey: np.ndarray, xyxy, margin_px: int = 2) -> Optional[Tuple[float, float]]:
+        """The centre of the isolated spot in a small box (no larger than a spot), or None where there
+        is none: the response-weighted centroid of the box's pixels (grown by ``margin_px``) at half
+        their peak or more, on detect's top-hat / black-hat response (the peak's polarity), the peak
+        at least ``min_contrast`` and ``min_isolation`` x (the largest response within a ring's reach
+        outside the box + 4). A 3-6 px drone's network box is placed on a 4-8 px grid; its pixels say
+        where it is to a fraction of one."""
+        kernel_px = self.kernel.shape[0]
+        x1, y1, x2, y2 = (float(v) for v in xyxy)
+        if not np.isfinite([x1, y1, x2, y2]).all() or max(x2 - x1, y2 - y1) > kernel_px or x2 <= x1 or y2 <= y1:
+            return None
+        h, w = grey.shape[:2]
+        pad = kernel_px // 2 + _RING_PX // 2
+        ix1, iy1 = int(np.floor(x1)) - margin_px, int(np.floor(y1)) - margin_px
+        ix2, iy2 = int(np.ceil(x2)) + margin_px, int(np.ceil(y2)) + margin_px
+        wx1, wy1, wx2, wy2 = max(0, ix1 - pad), max(0, iy1 - pad), min(w, ix2 + pad), min(h, iy2 + pad)
+        ix1, iy1, ix2, iy2 = max(ix1, wx1), max(iy1, wy1), min(ix2, wx2), min(iy2, wy2)
+        if ix2 <= ix1 or iy2 <= iy1:
+            return None
+        window = grey[wy1:wy2, wx1:wx2]
+        top = cv2.morphologyEx(window, cv2.MORPH_TOPHAT, self.kernel).astype(np.float32)
+        black = cv2.morphologyEx(window, cv2.MORPH_BLACKHAT, self.kernel).astype(np.float32)
+        inner = np.s_[iy1 - wy1:iy2 - wy1, ix1 - wx1:ix2 - wx1]
+        response = top if top[inner].max() >= black[inner].max() else black  # the spot's polarity
+        peak = float(response[inner].max())
+        outside = response.copy()
+        outside[inner] = 0.0
+        if peak < self.min_contrast or peak < self.min_isolation * (float(outside.max()) + 4.0):
+            return None
+        part = response[inner]
+        weight = np.where(part >= 0.5 * peak, part, 0.0)
+        ys, xs = np.mgrid[iy1:iy2, ix1:ix2]
+        total = float(weight.sum())
+        # pixel (x, y) covers [x, x + 1): its centre is x + 0.5
+        return float((weight * xs).sum() / total + 0.5), float((weight * ys).sum() / total + 0.5)

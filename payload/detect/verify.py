@@ -233,7 +233,6 @@ class LockVerifier:
         return out
 
 
-
 _BORDER = np.zeros((PATCH_PX, PATCH_PX), bool)
 _BORDER[0] = _BORDER[-1] = _BORDER[:, 0] = _BORDER[:, -1] = True
 
