@@ -41,7 +41,7 @@ class DetectorModels:
 def build_detectors(cfg: DetectorConfig) -> DetectorModels:
     """Load the enabled models (warming each up); a disabled stage gives None."""
 
-    def model(path: Optional[str], name: str, key: str, expected, warmup_hw) -> OnnxModel:
+    def model(path: Optional[str], name: str, key: str, expected, warmup_hw, varying_batch=False) -> OnnxModel:
         return OnnxModel(
             path or builtin_model_path(name),
             backend=cfg.backend,
@@ -51,6 +51,7 @@ def build_detectors(cfg: DetectorConfig) -> DetectorModels:
             expected_inputs=expected,
             config_key=key,
             warmup_hw=warmup_hw,
+            varying_batch=varying_batch,
         )
 
     def appearance(app: AppearanceConfig, name: str, module: str) -> Optional[AppearanceDetector]:
@@ -62,7 +63,8 @@ def build_detectors(cfg: DetectorConfig) -> DetectorModels:
 
     classifier = None
     if cfg.classifier.enabled:
-        m = model(cfg.classifier.model, "classifier", "detector.classifier.model", {"patches": 3}, None)
+        m = model(cfg.classifier.model, "classifier", "detector.classifier.model", {"patches": 3}, None,
+                  varying_batch=True)
         classifier = AppearanceClassifier(m, cfg.classifier)
     verifier = None
     if cfg.verifier.enabled:

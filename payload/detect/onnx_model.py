@@ -26,6 +26,12 @@ _CHAINS = {"tensorrt": (TRT, CUDA, CPU), "cuda": (CUDA, CPU), "cpu": (CPU,)}
 
 #: Warm-up and default spatial size for inputs whose H/W are dynamic.
 _WARMUP_HW = 64
+#: On a GPU provider a varying batch is always fed as this many rows (padded; more run in chunks of
+#: it): on an H100, ONNX Runtime's CUDA provider took 19 ms per classifier run whenever the batch size
+#: differed from the last run's (its cuDNN algorithm search, run again on every change of shape; 3 ms
+#: with the heuristic search) against 0.17 ms at one size (docs/results.md, "On a GPU"); TensorRT
+#: builds an engine for a shape outside its profile (seconds on a Jetson).
+GPU_BATCH = 32
 
 
 def _shape_fits(shape, spec) -> bool:
@@ -116,6 +122,8 @@ class OnnxModel:
     ``warmup_hw`` is the (H, W) the caller will feed (batch 1): the warm-up feeds it to dynamic
     inputs, so that TensorRT builds its engine for it here and not on the first live frame, and
     an input fixed to another size is refused here with one line.
+    ``varying_batch``: the caller feeds batches of any size (the classifier's patches); on a GPU
+    provider, where a change of batch size stalls the session, each is fed as ``GPU_BATCH`` rows.
     """
 
     def __init__(
@@ -128,6 +136,7 @@ class OnnxModel:
         expected_inputs: Optional[Dict[str, Any]] = None,
         config_key: str = "model",
         warmup_hw: Optional[Tuple[int, int]] = None,
+        varying_batch: bool = False,
     ) -> None:
         expected_inputs = {"images": 3} if expected_inputs is None else dict(expected_inputs)
         self.path = path
@@ -183,14 +192,16 @@ class OnnxModel:
         log.info("model loaded path=%s provider=%s providers=%s", path, self.providers[0], ",".join(self.providers))
         if self.providers[0] != wanted:
             log.warning("provider fallback path=%s wanted=%s got=%s", path, wanted, self.providers[0])
-        self._warm_up(warmup_hw or (_WARMUP_HW, _WARMUP_HW))
+        self.pad_batch = bool(varying_batch) and self.providers[0] != CPU
+        self._warm_up(warmup_hw or (_WARMUP_HW, _WARMUP_HW), GPU_BATCH if self.pad_batch else 1)
 
-    def _warm_up(self, hw: Tuple[int, int]) -> None:
+    def _warm_up(self, hw: Tuple[int, int], batch: int = 1) -> None:
         feeds = {}
         for name, shape in self.input_shapes.items():
             spec = self._channels[name]
             default = tuple(1 if d is None else d for d in spec) if isinstance(spec, tuple) else (1, spec, hw[0], hw[1])
             dims = [d if isinstance(d, int) and d > 0 else default[i] for i, d in enumerate(shape)]
+            dims[0] = batch if not isinstance(shape[0], int) or shape[0] <= 0 else dims[0]
             feeds[name] = np.zeros(dims, np.float32)
         try:
             self.session.run(None, feeds)
@@ -199,4 +210,12 @@ class OnnxModel:
             raise ModelError("%s: warm-up inference failed: %s" % (self.where, first[:200])) from None
 
     def run(self, feeds: Dict[str, np.ndarray]) -> List[np.ndarray]:
-        return self.session.run(None, feeds)
+        if not self.pad_batch:
+            return self.session.run(None, feeds)
+        n = len(next(iter(feeds.values())))
+        if n > GPU_BATCH:
+            parts = [self.run({k: v[i:i + GPU_BATCH] for k, v in feeds.items()}) for i in range(0, n, GPU_BATCH)]
+            return [np.concatenate(outs) for outs in zip(*parts)]
+        if n < GPU_BATCH:
+            feeds = {k: np.concatenate([v, np.zeros((GPU_BATCH - n,) + v.shape[1:], v.dtype)]) for k, v in feeds.items()}
+        return [out[:n] for out in self.session.run(None, feeds)]
