@@ -47,6 +47,7 @@ def main():
              for h in truths if h is not None]
     print("identity (no compensation): mean error %.2f px" % np.mean(ident))
     for v in [(640, cv2.INTER_AREA, (30, 20)), (640, cv2.INTER_LINEAR, (30, 20)), (640, cv2.INTER_AREA, (15, 10)),
+              (640, cv2.INTER_AREA, (20, 14)), (640, cv2.INTER_AREA, (24, 16)),
               (320, cv2.INTER_AREA, (30, 20)), (320, cv2.INTER_AREA, (15, 10)), (320, cv2.INTER_AREA, (10, 7)),
               (320, cv2.INTER_AREA, (8, 6)), (640, cv2.INTER_AREA, (30, 20), 10)]:
         name = "%d px %s grid %s%s" % (v[0], "AREA" if v[1] == cv2.INTER_AREA else "LINEAR", v[2],
