@@ -6,7 +6,7 @@ intervals and latency), ``t_wall_ns`` on the wall clock (for logs and MAVLink).
 """
 
 from dataclasses import dataclass, field
-from typing import Optional, Sequence, Tuple
+from typing import Any, Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -20,12 +20,17 @@ MODULES = (GAD, GMD, LAD, LMD)
 
 @dataclass(frozen=True)
 class Frame:
-    """One camera image (BGR, uint8, HxWx3) with its index and capture times."""
+    """One camera image (BGR, uint8, HxWx3) with its index and capture times.
+
+    ``prepared``: work on the image done ahead on the capture thread (``FrameSource.prepare``), by
+    the consumer's key (GLAD: GAD's down-scaled input); whoever uses it must do the same without it.
+    """
 
     image: np.ndarray
     index: int
     t_capture_ns: int
     t_wall_ns: int
+    prepared: Dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def size_wh(self) -> Tuple[int, int]:

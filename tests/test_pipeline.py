@@ -352,3 +352,43 @@ def test_gmd_over_its_candidate_cap_judges_the_cap_and_reports_the_frame_degrade
     result = glad.process(second)
     assert "GMD" in result.timings_ms
     assert result.degraded == ({"GMD": left_out} if left_out else {})
+
+
+def test_gads_input_is_prepared_ahead_only_for_the_frames_whose_look_is_gads(tmp_path):
+    # issue 19: on a frame GAD shrinks strongly the capture thread down-scales it ahead (Glad.prepare),
+    # but only when the next global look is GAD's (one global frame in four), not on every frame
+    glad = _spot_glad(tmp_path, **{"detector.global.motion.enabled": True})
+    prepared, ran = [], []
+    for i in range(9):
+        frame = _tiny_spot_frame(i, xy=(0, 0), side=0)
+        glad.prepare(frame)
+        prepared.append("GAD" in frame.prepared)
+        ran.append("GAD" in glad.process(frame).timings_ms)
+    assert ran == [True, False, False, False, True, False, False, False, True]
+    assert prepared == ran
+    small = _tiny_spot_frame(9, size_wh=(640, 512), xy=(0, 0), side=0)
+    glad.prepare(small)  # not scanned: GAD's input keeps most of the frame, nothing to move
+    assert small.prepared == {}
+
+
+@pytest.mark.parametrize("bogus", [None, "wrong size", "wrong type"])
+def test_a_frame_prepared_ahead_gives_the_frame_step_it_would_have_given(tmp_path, bogus):
+    from payload.types import Frame
+
+    unchecked = {"detector.classifier.modules": [], "detector.classifier.lock_hits": 0}
+    plain, ahead = _spot_glad(tmp_path, **unchecked), _spot_glad(tmp_path, **unchecked)
+    for i in range(12):
+        # an 8 px spot moving right (4 px on 4-aligned cells in GAD's half-size input): GAD finds it
+        # on its turn, then the local stage follows it
+        image = _tiny_spot_frame(i, xy=(400 + 8 * i, 304), side=8).image
+        a, b = Frame(image, i, i * 33_000_000, 0), Frame(image, i, i * 33_000_000, 0)
+        ahead.prepare(b)
+        if bogus == "wrong size" and "GAD" in b.prepared:
+            b.prepared["GAD"] = np.full((100, 100, 3), 255, np.uint8)
+        elif bogus == "wrong type" and "GAD" in b.prepared:
+            b.prepared["GAD"] = b.prepared["GAD"].astype(np.float32) + 200
+        ra, rb = plain.process(a), ahead.process(b)
+        assert (ra.mode, len(ra.detections)) == (rb.mode, len(rb.detections))
+        np.testing.assert_array_equal(ra.detections.xyxy, rb.detections.xyxy)
+        np.testing.assert_array_equal(ra.candidates.xyxy, rb.candidates.xyxy)
+    assert ra.mode == "local" and len(ra.detections)  # it was found and followed

@@ -127,3 +127,36 @@ def test_a_missing_file_is_reported_at_open_in_one_line(tmp_path):
     with pytest.raises(SourceError) as info:
         src.open()
     assert "none.mp4" in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("pace", [False, True])
+def test_frames_are_prepared_on_the_capture_thread(clip30, pace):
+    # issue 19: work the detector will need (GLAD: GAD's down-scaled input) is done on the thread
+    # that decodes, read ahead or played at camera rate, not on the consumer's
+    done = {}
+
+    def prepare(frame):
+        done[frame.index] = threading.current_thread().name
+        frame.prepared["mark"] = int(frame.image[0, 0, 0])
+
+    src = open_source(CaptureConfig(source="file", path=clip30, pace=pace, fps=200.0))
+    src.prepare = prepare
+    with src:
+        got = _all(src)
+    assert got and all(f.prepared["mark"] == int(f.image[0, 0, 0]) for f in got)
+    assert all(done[f.index] != threading.current_thread().name for f in got)
+
+
+@pytest.mark.parametrize("pace", [False, True])
+def test_a_failing_prepare_is_logged_once_and_frames_go_on_unprepared(clip30, pace, caplog):
+    def prepare(frame):
+        frame.prepared["half"] = 1
+        raise ValueError("broken on purpose")
+
+    src = open_source(CaptureConfig(source="file", path=clip30, pace=pace, fps=200.0))
+    src.prepare = prepare
+    with caplog.at_level("WARNING"), src:
+        got = _all(src)
+    assert len(got) >= 20 and all(f.prepared == {} for f in got)  # nothing half-made goes out
+    lines = [r.getMessage() for r in caplog.records if "preparing a frame failed" in r.getMessage()]
+    assert len(lines) == 1 and "ValueError: broken on purpose" in lines[0]

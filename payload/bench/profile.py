@@ -226,6 +226,7 @@ def _loop_pass(cfg: Config, capture, runner, link, publisher, frames: int, video
     if paced_fps:  # the service's paced path (capture.pace), at the bench's rate
         capture = capture.model_copy(update={"pace": True, "fps": paced_fps})
     source = open_source(capture)
+    source.prepare = getattr(runner, "prepare", None)  # as the service: GLAD's work on the capture thread
     with source as frames_in:
         runner.reset()
         t_start = time.perf_counter()

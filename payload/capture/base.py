@@ -5,11 +5,14 @@ that it keeps control while a live camera is lost and being reconnected.
 """
 
 import abc
+import logging
 import time
 from dataclasses import dataclass
-from typing import Iterator, Optional
+from typing import Callable, Iterator, Optional
 
 from payload.types import Frame
+
+log = logging.getLogger(__name__)
 
 
 class EndOfStream(Exception):
@@ -34,6 +37,26 @@ class FrameSource(abc.ABC):
 
     def __init__(self) -> None:
         self.stats = SourceStats()
+        #: Called on each new frame by a source with a thread of its own (a camera, a recording read
+        #: ahead or played at camera rate) before the consumer gets it, so that work the consumer
+        #: will need (GLAD: GAD's down-scaled input) runs on another core (issue 19); None: nothing.
+        self.prepare: Optional[Callable[[Frame], None]] = None
+        self._prepare_failed = False
+
+    def _prepared(self, frame: Frame) -> Frame:
+        """``frame`` after ``prepare``; a failing prepare is logged once and the frame goes on
+        without it (the consumer does the work itself): capture never stops for it."""
+        prepare = self.prepare
+        if prepare is not None:
+            try:
+                prepare(frame)
+            except Exception as exc:  # noqa: BLE001 - whatever it was, the frame still goes out
+                frame.prepared.clear()
+                if not self._prepare_failed:
+                    self._prepare_failed = True
+                    log.warning("source=%s preparing a frame failed (frames go on unprepared): %s: %s",
+                                self.name, type(exc).__name__, exc)
+        return frame
 
     @property
     def name(self) -> str:

@@ -246,7 +246,8 @@ class GStreamerSource(FrameSource):
         self.backend = ("opencv" if opencv_has_gstreamer() else "gi") if backend == "auto" else backend
         self._live_override = live
         self._open_timeout_s = open_timeout_s
-        self._reader = LiveReader(self._connect, retry or Retry(), self.stats, name=self.name, stall_s=stall_s)
+        self._reader = LiveReader(self._connect, retry or Retry(), self.stats, name=self.name, stall_s=stall_s,
+                                  prepare=self._prepared)
         self._direct = None  # type: Optional[Grabber]
         self._t0 = (0, 0)
         self._opened = False

@@ -60,6 +60,7 @@ class LiveReader:
         stall_s: float = 5.0,
         poll_s: float = 0.1,
         finite: bool = False,
+        prepare: Optional[Callable[[Frame], Frame]] = None,
     ) -> None:
         self._connect = connect
         self._retry = retry
@@ -68,6 +69,7 @@ class LiveReader:
         self._stall_s = stall_s
         self._poll_s = poll_s
         self._finite = finite
+        self._prepare = prepare  # the source's FrameSource._prepared: work done ahead, on this thread
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._latest = None  # type: Optional[Frame]
@@ -155,8 +157,10 @@ class LiveReader:
             t_capture_ns, t_wall_ns = now_ns()
             last_s = time.monotonic()
             index = grabber.index if grabber.index is not None else self._next_index
+            frame = Frame(image=image, index=index, t_capture_ns=t_capture_ns, t_wall_ns=t_wall_ns)
+            if self._prepare is not None:
+                frame = self._prepare(frame)
             with self._cond:
-                frame = Frame(image=image, index=index, t_capture_ns=t_capture_ns, t_wall_ns=t_wall_ns)
                 self._next_index = index + 1
                 if not self._latest_read:
                     self._stats.dropped += 1

@@ -120,7 +120,7 @@ class PacedSource(FrameSource):
             return
         self.recording.open()  # a missing or unreadable recording is reported here, at once
         grabber = PacedGrabber(self.recording, self.fps, self.stats)
-        self._reader = LiveReader(None, Retry(), self.stats, self.name, finite=True)
+        self._reader = LiveReader(None, Retry(), self.stats, self.name, finite=True, prepare=self._prepared)
         self._reader.start(grabber)
         log.info("recording played as a camera source=%s fps=%g", self.name, self.fps)
 

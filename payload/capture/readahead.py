@@ -72,7 +72,7 @@ class ReadAhead(FrameSource):
             except Exception as exc:  # noqa: BLE001 - handed to the consumer, raised there in order
                 self._put(exc)
                 return
-            if frame is not None and not self._put(frame):
+            if frame is not None and not self._put(self._prepared(frame)):
                 return
 
     def read(self, timeout_s: float = 1.0) -> Optional[Frame]:

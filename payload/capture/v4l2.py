@@ -64,7 +64,7 @@ class V4L2Source(FrameSource):
         if len(self.fourcc) != 4:
             raise SourceError("capture.fourcc: %r: expected 4 characters such as MJPG or YUYV" % (self.fourcc,))
         self.actual = {}  # what the driver really gave: width, height, fps, fourcc
-        self._reader = LiveReader(self._connect, retry or Retry(), self.stats, name=self.name)
+        self._reader = LiveReader(self._connect, retry or Retry(), self.stats, name=self.name, prepare=self._prepared)
         self._opened = False
 
     def _connect(self) -> _V4L2Grabber:

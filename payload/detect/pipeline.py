@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 
 from payload.config import DetectorConfig, section_changes
+from payload.detect.appearance import fitted
 from payload.detect.ego_motion import CameraMotion, EgoMotion, GreyLevels
 from payload.detect.factory import DetectorModels, build_detectors
 from payload.detect.motion import MotionDetector
@@ -117,12 +118,24 @@ class Glad:
         self._primary_id: Optional[int] = None  # last frame's primary: kept unless another is clearly better
         self._since_search = 0  # frames since the global stage last ran
         self._turn = -1  # the global look whose turn it was last (payload.detect.pipeline._spread)
+        self._looks = 1  # how many global looks take turns (1: no turns)
+        self._gad_next = True  # whether the next frame's global look may be GAD's (Glad.prepare)
         # this frame's camera motion for the local stage (one estimate for every track) and its matrix
         self._camera: Optional[CameraMotion] = None
         self._homography: Optional[np.ndarray] = None
         self._degraded: Dict[str, int] = {}
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
+
+    def prepare(self, frame: Frame) -> None:
+        """Work a coming frame step will need, done on the capture thread (``FrameSource.prepare``):
+        on a frame GAD down-scales strongly (1080p: 2.5-3 ms of its ~13 on one core) and while the next
+        global look may be GAD's, GAD's input down-scaled. Only reads settings and a flag the frame step
+        leaves (``_gad_next``); a frame read ahead may find it stale: GAD then down-scales itself."""
+        gad = self.models.global_appearance
+        if gad is None or not self._gad_next or not self.cfg.global_.appearance.enabled or not self._scanned(frame):
+            return
+        frame.prepared[GAD] = fitted(frame.image, gad.input_wh)
 
     @property
     def designated(self) -> bool:
@@ -216,6 +229,7 @@ class Glad:
         self._turn = -1
         self._spot_band = 0
         self.scan.reset()
+        self._looks, self._gad_next = 1, True
         self._prev = self._prev_t_ns = None
 
     # --- the per-frame step -------------------------------------------------------------
@@ -262,6 +276,7 @@ class Glad:
         judged = primary if primary is not None else (self.tracks[0] if self.tracks else None)
         if judged is not None:
             lock_p = judged.verifier.probability
+        self._gad_next = self._search_due() and (self._turn + 1) % self._looks == 0
         t_shown = time.perf_counter()
         shown = {t.id: self._on_spot(t, grey) for t in reported}
         _add(timings, "switcher", _ms(t_shown))
@@ -346,7 +361,8 @@ class Glad:
         if self._scanned(frame) and len(looks) > 1:
             looks = self._spread(looks)
         if GAD in looks:
-            found = keep(self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates))
+            found = keep(self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates,
+                                          fitted=frame.prepared.get(GAD)))
         if not len(found) and GMD in looks:
             t = time.perf_counter()
             camera = self.ego_motion.estimate(prev, grey, fine=True)
@@ -378,6 +394,7 @@ class Glad:
         GMD, the scan and the spots in turn. All in one frame cost ~55 ms there, beyond a 30 FPS
         camera's 33 ms; one a frame stays near the dearest one's ~15 ms. On synthetic 1080p scenes
         GAD, GMD and the scan in turn found as much as all three at once (docs/results.md)."""
+        self._looks = len(looks)
         self._turn = (self._turn + 1) % len(looks)
         return [looks[self._turn]]
 
@@ -586,11 +603,12 @@ class Glad:
         return self._confirm(image, far.sorted_by_score()[:1], rescore=False, timings=timings)
 
     def _appearance(self, detector, image: np.ndarray, part: np.ndarray, offset_xy, timings: Dict[str, float],
-                    candidates: List[Detections]) -> Detections:
-        """GAD or LAD on ``part`` of the frame (at ``offset_xy``): its hits join ``candidates``,
-        those the classifier confirms are returned."""
+                    candidates: List[Detections], fitted: Optional[np.ndarray] = None) -> Detections:
+        """GAD or LAD on ``part`` of the frame (at ``offset_xy``; ``fitted``: ``part`` already down-scaled
+        to the detector's input, by ``prepare``): its hits join ``candidates``, those the classifier
+        confirms are returned."""
         t = time.perf_counter()
-        found = detector.detect(part, offset_xy=offset_xy)
+        found = detector.detect(part, offset_xy=offset_xy, fitted=fitted)
         _add(timings, detector.module, _ms(t))
         candidates.append(found)
         return self._classify(image, found, timings)
