@@ -367,12 +367,13 @@ def test_gads_input_is_prepared_ahead_only_for_the_frames_whose_look_is_gads(tmp
     assert ran == [True, False, False, False, True, False, False, False, True]
     assert prepared == ran
     small = _tiny_spot_frame(9, size_wh=(640, 512), xy=(0, 0), side=0)
-    glad.prepare(small)  # not scanned: GAD's input keeps most of the frame, nothing to move
-    assert small.prepared == {}
+    glad.prepare(small)  # not scanned: GAD's input keeps most of the frame, nothing to move; the grey always
+    assert list(small.prepared) == ["grey"] and small.prepared["grey"].full.shape == (512, 640)
 
 
-@pytest.mark.parametrize("bogus", [None, "wrong size", "wrong type"])
+@pytest.mark.parametrize("bogus", [None, "wrong size", "wrong type", "grey of another size", "grey not levels"])
 def test_a_frame_prepared_ahead_gives_the_frame_step_it_would_have_given(tmp_path, bogus):
+    from payload.detect.ego_motion import GreyLevels
     from payload.types import Frame
 
     unchecked = {"detector.classifier.modules": [], "detector.classifier.lock_hits": 0}
@@ -387,6 +388,10 @@ def test_a_frame_prepared_ahead_gives_the_frame_step_it_would_have_given(tmp_pat
             b.prepared["GAD"] = np.full((100, 100, 3), 255, np.uint8)
         elif bogus == "wrong type" and "GAD" in b.prepared:
             b.prepared["GAD"] = b.prepared["GAD"].astype(np.float32) + 200
+        elif bogus == "grey of another size":
+            b.prepared["grey"] = GreyLevels.of(np.full((100, 100), 255, np.uint8))
+        elif bogus == "grey not levels":
+            b.prepared["grey"] = np.full(image.shape[:2], 255, np.uint8)
         ra, rb = plain.process(a), ahead.process(b)
         assert (ra.mode, len(ra.detections)) == (rb.mode, len(rb.detections))
         np.testing.assert_array_equal(ra.detections.xyxy, rb.detections.xyxy)
