@@ -367,13 +367,13 @@ def test_gads_input_is_prepared_ahead_only_for_the_frames_whose_look_is_gads(tmp
     assert ran == [True, False, False, False, True, False, False, False, True]
     assert prepared == ran
     small = _tiny_spot_frame(9, size_wh=(640, 512), xy=(0, 0), side=0)
-    glad.prepare(small)  # not scanned: GAD's input keeps most of the frame, nothing to move; the grey always
-    assert list(small.prepared) == ["grey"] and small.prepared["grey"].full.shape == (512, 640)
+    glad.prepare(small)  # not scanned: GAD's input keeps most of the frame, nothing to move
+    assert small.prepared == {}
 
 
-@pytest.mark.parametrize("bogus", [None, "wrong size", "wrong type", "grey of another size", "grey not levels"])
+@pytest.mark.parametrize("bogus", [None, "wrong size", "wrong type"])
 def test_a_frame_prepared_ahead_gives_the_frame_step_it_would_have_given(tmp_path, bogus):
-    from payload.detect.ego_motion import GreyLevels
+    from payload.detect.appearance import letterbox
     from payload.types import Frame
 
     unchecked = {"detector.classifier.modules": [], "detector.classifier.lock_hits": 0}
@@ -384,14 +384,10 @@ def test_a_frame_prepared_ahead_gives_the_frame_step_it_would_have_given(tmp_pat
         image = _tiny_spot_frame(i, xy=(400 + 8 * i, 304), side=8).image
         a, b = Frame(image, i, i * 33_000_000, 0), Frame(image, i, i * 33_000_000, 0)
         ahead.prepare(b)
-        if bogus == "wrong size" and "GAD" in b.prepared:
-            b.prepared["GAD"] = np.full((100, 100, 3), 255, np.uint8)
+        if bogus == "wrong size" and "GAD" in b.prepared:  # the input of another frame size
+            b.prepared["GAD"] = letterbox(np.full((100, 100, 3), 255, np.uint8), (640, 384))
         elif bogus == "wrong type" and "GAD" in b.prepared:
-            b.prepared["GAD"] = b.prepared["GAD"].astype(np.float32) + 200
-        elif bogus == "grey of another size":
-            b.prepared["grey"] = GreyLevels.of(np.full((100, 100), 255, np.uint8))
-        elif bogus == "grey not levels":
-            b.prepared["grey"] = np.full(image.shape[:2], 255, np.uint8)
+            b.prepared["GAD"] = (b.prepared["GAD"][0].astype(np.float64) + 1, b.prepared["GAD"][1])
         ra, rb = plain.process(a), ahead.process(b)
         assert (ra.mode, len(ra.detections)) == (rb.mode, len(rb.detections))
         np.testing.assert_array_equal(ra.detections.xyxy, rb.detections.xyxy)

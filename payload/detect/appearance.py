@@ -51,33 +51,16 @@ class Letterbox:
         return np.asarray(xyxy_image, np.float32).reshape(-1, 4) * np.array([sx, sy, sx, sy], np.float32)
 
 
-def _fitted_wh(image_wh: Tuple[int, int], input_wh: Tuple[int, int]) -> Tuple[int, int]:
-    w, h = image_wh
-    in_w, in_h = int(input_wh[0]), int(input_wh[1])
-    scale = min(in_w / float(w), in_h / float(h), 1.0)
-    return min(in_w, max(1, int(round(w * scale)))), min(in_h, max(1, int(round(h * scale))))
-
-
-def fitted(image_bgr: np.ndarray, input_wh: Tuple[int, int]) -> np.ndarray:
-    """The image as ``letterbox`` places it in an input of ``input_wh``: down-scaled to fit (area
-    averaging), or itself when it fits."""
-    h, w = image_bgr.shape[:2]
-    new_wh = _fitted_wh((w, h), input_wh)
-    return image_bgr if new_wh == (w, h) else cv2.resize(image_bgr, new_wh, interpolation=cv2.INTER_AREA)
-
-
-def letterbox(image_bgr: np.ndarray, input_wh: Tuple[int, int], out: Optional[np.ndarray] = None,
-              fitted_bgr: Optional[np.ndarray] = None) -> Tuple[np.ndarray, Letterbox]:
+def letterbox(image_bgr: np.ndarray, input_wh: Tuple[int, int],
+              out: Optional[np.ndarray] = None) -> Tuple[np.ndarray, Letterbox]:
     """The network's input for the image: fitted into input_wh (down-scale only), grey padding right
     and bottom, as [1, 3, H, W] float32 RGB in [0, 1] (written into ``out`` when given, that shape);
-    and the mapping back to the image. ``fitted_bgr``: ``fitted(image_bgr, input_wh)`` made earlier
-    (on the capture thread), used when it has the fitted size."""
+    and the mapping back to the image."""
     h, w = image_bgr.shape[:2]
     in_w, in_h = int(input_wh[0]), int(input_wh[1])
-    new_w, new_h = _fitted_wh((w, h), input_wh)
-    if fitted_bgr is not None and fitted_bgr.shape == (new_h, new_w, 3) and fitted_bgr.dtype == np.uint8:
-        image_bgr = fitted_bgr
-    elif (new_w, new_h) != (w, h):
+    scale = min(in_w / float(w), in_h / float(h), 1.0)
+    new_w, new_h = min(in_w, max(1, int(round(w * scale)))), min(in_h, max(1, int(round(h * scale))))
+    if (new_w, new_h) != (w, h):
         image_bgr = cv2.resize(image_bgr, (new_w, new_h), interpolation=cv2.INTER_AREA)
     # Written into a buffer the detector keeps (RGB planes, padding, then one scaling in place): no
     # padded uint8 copy and no fresh 3 MB a frame (cv2.dnn.blobFromImage on a padded copy took ~2 ms
@@ -126,6 +109,14 @@ class AppearanceDetector:
                 % (model.where, self.input_wh[0], self.input_wh[1], list(out.shape))
             )
 
+    def _fits(self, letterboxed, image_bgr: np.ndarray) -> bool:
+        if not (isinstance(letterboxed, tuple) and len(letterboxed) == 2 and isinstance(letterboxed[1], Letterbox)):
+            return False
+        blob, box = letterboxed
+        h, w = image_bgr.shape[:2]
+        return (isinstance(blob, np.ndarray) and blob.dtype == np.float32 and blob.shape == self._blob.shape
+                and box.image_wh == (w, h) and box.input_wh == self.input_wh)
+
     def update_config(self, cfg: AppearanceConfig) -> None:
         """Hot reload: thresholds only (the input size is fixed at start-up)."""
         if tuple(cfg.input_wh) != self.input_wh:
@@ -133,12 +124,16 @@ class AppearanceDetector:
         self.cfg = cfg
 
     def detect(self, image_bgr: np.ndarray, offset_xy: Tuple[float, float] = (0, 0),
-               fitted: Optional[np.ndarray] = None) -> Detections:
-        """Hits on the image (a frame, or a crop at ``offset_xy``); ``fitted``: the image already
-        down-scaled to the input (``payload.detect.appearance.fitted``), if at hand."""
+               letterboxed: Optional[Tuple[np.ndarray, Letterbox]] = None) -> Detections:
+        """Hits on the image (a frame, or a crop at ``offset_xy``); ``letterboxed``: what
+        ``letterbox(image_bgr, input_wh)`` gave earlier (on the capture thread), used when it is
+        that input for an image of this size."""
         if image_bgr is None or image_bgr.ndim != 3 or image_bgr.shape[0] < 1 or image_bgr.shape[1] < 1:
             return Detections.empty()
-        blob, box = letterbox(image_bgr, self.input_wh, out=self._blob, fitted_bgr=fitted)
+        if self._fits(letterboxed, image_bgr):
+            blob, box = letterboxed
+        else:
+            blob, box = letterbox(image_bgr, self.input_wh, out=self._blob)
         maps = self.model.run({self._input_name: blob})[0]
         xyxy, score = decode(maps, self.cfg.confidence, self.input_wh)
         keep = nms(xyxy, score, self.cfg.nms_iou)

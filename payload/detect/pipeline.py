@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 
 from payload.config import DetectorConfig, section_changes
-from payload.detect.appearance import fitted
+from payload.detect.appearance import letterbox
 from payload.detect.ego_motion import CameraMotion, EgoMotion, GreyLevels
 from payload.detect.factory import DetectorModels, build_detectors
 from payload.detect.motion import MotionDetector
@@ -53,7 +53,6 @@ from payload.detect.tracks import Track, TrackedTarget, is_far, merge_overlappin
 from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
 
 SCAN = "scan"  # the global stage's native-resolution looks: the local network on tiles (payload.detect.scan)
-GREY = "grey"  # the frame in grey and its levels (GreyLevels), made by Glad.prepare or the frame step
 POINTS = "points"  # ... and isolated spots over the whole frame (payload.detect.points), a band a turn
 # at most this many pixels a band (a 1080p frame in two, 1280x720 whole): ~6 ms on one core
 SPOT_BAND_PX = 1_100_000
@@ -130,15 +129,15 @@ class Glad:
 
     def prepare(self, frame: Frame) -> None:
         """Work a coming frame step will need, done on the capture thread (``FrameSource.prepare``):
-        the frame in grey with its down-scaled levels (every frame: 1-1.5 ms at 1080p, 0.3 at 640x512);
-        on a frame GAD down-scales strongly (1080p: 2.5-3 ms of its ~13 on one core) and while the next
-        global look may be GAD's, GAD's input down-scaled. Only reads settings and a flag the frame step
-        leaves (``_gad_next``); a frame read ahead may find it stale: GAD then down-scales itself."""
-        frame.prepared[GREY] = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
+        on a frame GAD down-scales strongly (1080p: ~3 ms of its ~13 on one core) and while the next
+        global look may be GAD's, GAD's input (down-scaled, padded, in float). Only reads settings and a flag the frame step
+        leaves (``_gad_next``); a frame read ahead may find it stale: GAD then down-scales itself.
+        The grey levels are not made here: paced, the frame step's GMD and spots then ran ~1.5 ms
+        slower each on this 2-core host (the grey made on the other core), for no lower latency."""
         gad = self.models.global_appearance
         if gad is None or not self._gad_next or not self.cfg.global_.appearance.enabled or not self._scanned(frame):
             return
-        frame.prepared[GAD] = fitted(frame.image, gad.input_wh)
+        frame.prepared[GAD] = letterbox(frame.image, gad.input_wh)
 
     @property
     def designated(self) -> bool:
@@ -240,9 +239,7 @@ class Glad:
     def process(self, frame: Frame) -> GladResult:
         timings: Dict[str, float] = {}
         t0 = time.perf_counter()
-        grey = frame.prepared.get(GREY)
-        if not isinstance(grey, GreyLevels) or grey.full.shape != frame.image.shape[:2]:
-            grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
+        grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
         timings["grey"] = _ms(t0)
         self._camera, self._homography = None, None
         self._degraded = {}
@@ -367,7 +364,7 @@ class Glad:
             looks = self._spread(looks)
         if GAD in looks:
             found = keep(self._appearance(gad, frame.image, frame.image, (0, 0), timings, candidates,
-                                          fitted=frame.prepared.get(GAD)))
+                                          letterboxed=frame.prepared.get(GAD)))
         if not len(found) and GMD in looks:
             t = time.perf_counter()
             camera = self.ego_motion.estimate(prev, grey, fine=True)
@@ -608,12 +605,12 @@ class Glad:
         return self._confirm(image, far.sorted_by_score()[:1], rescore=False, timings=timings)
 
     def _appearance(self, detector, image: np.ndarray, part: np.ndarray, offset_xy, timings: Dict[str, float],
-                    candidates: List[Detections], fitted: Optional[np.ndarray] = None) -> Detections:
-        """GAD or LAD on ``part`` of the frame (at ``offset_xy``; ``fitted``: ``part`` already down-scaled
-        to the detector's input, by ``prepare``): its hits join ``candidates``, those the classifier
+                    candidates: List[Detections], letterboxed=None) -> Detections:
+        """GAD or LAD on ``part`` of the frame (at ``offset_xy``; ``letterboxed``: ``part`` already made
+        the detector's input, by ``prepare``): its hits join ``candidates``, those the classifier
         confirms are returned."""
         t = time.perf_counter()
-        found = detector.detect(part, offset_xy=offset_xy, fitted=fitted)
+        found = detector.detect(part, offset_xy=offset_xy, letterboxed=letterboxed)
         _add(timings, detector.module, _ms(t))
         candidates.append(found)
         return self._classify(image, found, timings)
