@@ -130,10 +130,12 @@ class Glad:
     def prepare(self, frame: Frame) -> None:
         """Work a coming frame step will need, done on the capture thread (``FrameSource.prepare``):
         on a frame GAD down-scales strongly (1080p: ~3 ms of its ~13 on one core) and while the next
-        global look may be GAD's, GAD's input (down-scaled, padded, in float). Only reads settings and a flag the frame step
-        leaves (``_gad_next``); a frame read ahead may find it stale: GAD then down-scales itself.
-        The grey levels are not made here: paced, the frame step's GMD and spots then ran ~1.5 ms
-        slower each on this 2-core host (the grey made on the other core), for no lower latency."""
+        global look may be GAD's, GAD's input (down-scaled, padded, in float). It overlaps detection
+        when the detector is still busy with the previous frame; at camera rate it only comes before
+        the hand-over. Reads settings and a flag the frame step leaves (``_gad_next``); a frame read
+        ahead may find it stale: GAD then makes its input itself. The grey levels are not made here:
+        paced, the frame step's GMD and spots then ran ~1.5 ms slower each on this 2-core host (the
+        grey made on the other core), for no lower latency."""
         gad = self.models.global_appearance
         if gad is None or not self._gad_next or not self.cfg.global_.appearance.enabled or not self._scanned(frame):
             return
