@@ -4,8 +4,8 @@
 
 For every shipped model, inputs made from CLIP's frames the way GLAD makes them (GAD: the whole
 frame letterboxed; LAD: 320x320 crops at native resolution; the classifier: 32x32 patches; the
-verifier: rows of random features; the classifier's batches of 1-40 patches, as varied as a
-frame's candidates), run through a CPU session and a session on ``--backend``
+verifier: rows of random features; the classifier's patches around 1-40 random boxes, cut as GLAD
+cuts them, as varied in number as a frame's candidates), run through a CPU session and a session on ``--backend``
 (``payload.detect.onnx_model.OnnxModel``, the payload's own session code). Prints per model the
 provider ORT actually chose, the largest output difference, whether the detections above the
 config's confidence are the same boxes (within 0.5 px), and the median / p99 ms per run on each.
@@ -17,24 +17,25 @@ import os
 import sys
 import time
 
-import cv2
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from payload.capture.file import VideoFileSource  # noqa: E402
 from payload.config import Config  # noqa: E402
 from payload.detect.appearance import decode, letterbox  # noqa: E402
 from payload.detect.factory import builtin_model_path  # noqa: E402
 from payload.detect.onnx_model import OnnxModel  # noqa: E402
+from payload.detect.patches import crop_patches, patches_to_input  # noqa: E402
+from payload.errors import SourceError  # noqa: E402
 
 
 def frames_of(clip, n):
-    cap = cv2.VideoCapture(clip)
-    out = []
-    while len(out) < n:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        out.append(frame)
+    """The clip's first ``n`` images, read by the payload's own file source."""
+    try:
+        with VideoFileSource(clip) as source:
+            out = [frame.image for _, frame in zip(range(n), source)]
+    except SourceError as exc:
+        sys.exit("backend_check: %s" % exc)
     if not out:
         sys.exit("backend_check: %s: no frames could be read" % clip)
     return out
@@ -49,11 +50,11 @@ def inputs(frames, cfg, rng):
         h, w = f.shape[:2]
         x, y = rng.integers(0, max(1, w - lwh[0])), rng.integers(0, max(1, h - lwh[1]))
         local.append(letterbox(f[y:y + lwh[1], x:x + lwh[0]], lwh)[0].copy())
-        batch = []
-        for _ in range(rng.integers(1, 41)):  # as many as a frame's candidates: the size varies
-            px, py = rng.integers(0, w - 32), rng.integers(0, h - 32)
-            batch.append(f[py:py + 32, px:px + 32, ::-1].transpose(2, 0, 1).astype(np.float32) / 255.0)
-        patches.append(np.stack(batch))
+        # as many candidate boxes (4-40 px) as a frame's candidates: the batch size varies
+        n = int(rng.integers(1, 41))
+        xy = rng.uniform((0, 0), (w - 40, h - 40), (n, 2))
+        boxes = np.concatenate([xy, xy + rng.uniform(4, 40, (n, 2))], axis=1)
+        patches.append(patches_to_input(crop_patches(f, boxes)))
     return {"global": (gwh, glob), "local": (lwh, local), "classifier": (None, patches)}
 
 
