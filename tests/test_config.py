@@ -73,7 +73,7 @@ def test_paper_parameters_defaults():
     # measured deviations for 4-10 px targets in the global motion detector (payload/config.py)
     assert (m.alpha, m.open_iterations, m.min_blob_area_px) == (0.0, 0, 6)
     # and for issue 19's time budget: fewer candidates judged (the same eval lines)
-    assert m.max_candidates == 16
+    assert m.max_candidates == 8
     lm = c.local.motion
     assert (lm.alpha, lm.open_iterations, lm.min_blob_area_px) == (1.0, 1, 30)
     assert c.search_region.side_px == 300 and c.search_region.growth_px_per_miss == 4.0
