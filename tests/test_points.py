@@ -176,6 +176,32 @@ def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
     assert after.mode == "local" and not len(after.detections) and len(after.candidates) == 1
 
 
+def test_a_hit_elsewhere_in_the_region_does_not_stop_the_spots_near_the_prediction(tmp_path):
+    # a followed small drone that LAD does not see, and in its region, farther than the jump gate,
+    # something LAD does see (a bird): the spots still look for the drone (seed 307 of the tiny white
+    # drones lost every other frame of its lock to a bird 120 px away)
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.tiles_per_frame": 2,
+                                   "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see the spot
+                                   "detector.global.appearance.confidence": 0.6,  # nor takes the bird's 0.55 as a new target
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+    i = 0
+    while not len(glad.process(_grey_spot_frame(i)).detections):
+        i += 1
+        assert i < 20
+    results = []
+    for j in range(i + 1, i + 6):
+        frame = _grey_spot_frame(j)
+        frame.image[560:564, 1080:1084] = 140  # 81 px from the spot (gate 50), inside the 300 px region
+        results.append(glad.process(frame))
+    for r in results:
+        assert r.mode == "local" and "points" in r.timings_ms
+        assert "LAD" in set(r.candidates.module[r.candidates.xyxy[:, 0] > 1070])  # LAD saw the bird
+        assert np.allclose(r.target.xyxy, [999, 599, 1005, 605], atol=3) and len(r.detections)
+
+
 @pytest.mark.parametrize("value, expected", [
     ("sometimes", "detector.global.scan.points: 'sometimes' is not true or false"),
     ("2", "detector.global.scan.points: 2 is not true or false"),

@@ -484,12 +484,14 @@ class Glad:
             # the region's camera motion, not one of its own: one estimate a frame
             found = self._motion(self.lmd, frame.image, prev.full[y1:y2, x1:x2], grey.full[y1:y2, x1:x2],
                                  camera.for_crop((x1, y1)), (x1, y1), time.perf_counter(), timings, candidates)
-        if not len(found) and self.cfg.global_.scan.points and self._scanned(frame):
+        if self.cfg.global_.scan.points and self._scanned(frame) and not len(self._gate(found, predicted)[0]):
+            # nothing near the prediction (a hit elsewhere in the region, a bird, is no reason not
+            # to look for a small target's spot where it should be)
             t = time.perf_counter()
             spots = self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1), module=LAD)
             candidates.append(spots)
             _add(timings, "points", _ms(t))
-            found = self._confirm(frame.image, spots, rescore=True, timings=timings)
+            found = Detections.concat([found, self._confirm(frame.image, spots, rescore=True, timings=timings)])
         t = time.perf_counter()
         near, near_distance, far = self._gate(found, predicted)
         best = self._pick(near, near_distance)
