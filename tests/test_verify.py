@@ -93,6 +93,30 @@ def test_lock_is_judged_after_min_frames_and_released_below_the_release_threshol
     assert not v.verified and len(v.rows) == 0
 
 
+def test_a_lock_is_refused_only_after_a_whole_window_of_verdicts_under_the_bar(tmp_path):
+    from payload.detect.verify import REFUSED_BELOW
+
+    v = _verifier(tmp_path, min_frames=2, threshold=0.9, release_threshold=0.7)
+    low, held = REFUSED_BELOW - 0.2, REFUSED_BELOW + 0.1
+    v.add(_row(low))  # not judged yet (min_frames 2): no verdict counts
+    for _ in range(v.window - 1):
+        v.add(_row(low))
+    assert not v.refused  # one verdict short of a window
+    v.add(_row(low))
+    assert v.refused and not v.verified
+    v.add(_row(held))  # one verdict at the bar or more: judged afresh
+    assert not v.refused
+    for _ in range(3 * v.window):
+        v.add(_row(held))  # held back (under the 0.9 to verify), never refused
+    assert not v.refused and not v.verified
+    v.reset()
+    assert not v.refused and v.below == 0
+    off = _verifier(tmp_path, min_frames=1, enabled=False)
+    for _ in range(2 * off.window):
+        off.add(_row(low))
+    assert not off.refused  # switched off: nothing is judged, nothing refused
+
+
 def test_nan_from_the_network_is_not_verified(tmp_path):
     v = _verifier(tmp_path, min_frames=1, threshold=0.5, release_threshold=0.3)
     assert v.add(_row(0.9))

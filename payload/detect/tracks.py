@@ -101,11 +101,15 @@ class Track:
         return self.region.predicted_box() if self.region.active else None
 
     def stale(self, frames: int) -> bool:
-        """Whether the classifier has neither confirmed nor dropped it in ``frames`` frames of being
-        followed (and it is not the operator's): it may give its place to a new hit (GLAD's global
-        stage). A confirmed lock the verifier still holds back is not stale: on val those were the
-        drones themselves, and giving their place cost synthetic F (docs/results.md)."""
-        return not self.designated and not self.lock.confirmed and self.unreported >= frames
+        """Whether it may give its place to a new hit (GLAD's global stage), not being the operator's:
+        the classifier has neither confirmed nor dropped it in ``frames`` frames of being followed,
+        or the verifier refuses it (``LockVerifier.refused``: a bird or clutter the classifier took,
+        which else held the only place for the rest of the clip). A confirmed lock the verifier
+        merely holds back is not stale: on val those were the drones themselves, and giving their
+        place cost synthetic F (docs/results.md)."""
+        if self.designated or self.unreported < frames:
+            return False
+        return not self.lock.confirmed or self.verifier.refused
 
     @property
     def verified(self) -> bool:

@@ -168,6 +168,12 @@ def _surroundings(grey: np.ndarray, box: np.ndarray) -> Tuple[float, float, floa
     return contrast, float(np.log1p(std_in)), float(np.log1p(std_ring))
 
 
+#: A lock whose drone probability stayed below this over a whole window of the verifier's verdicts
+#: is refused (``LockVerifier.refused``): the tiny white drones' birds and clutter held 0.00-0.39 for
+#: 150 frames, their drone locks reached 0.8-0.99 within every window (docs/results.md).
+REFUSED_BELOW = 0.5
+
+
 class LockVerifier:
     """The current lock's recent rows and the network's verdict on them.
 
@@ -208,6 +214,7 @@ class LockVerifier:
         self.rows.clear()
         self.probability = float("nan")  # the network's last verdict on this lock (nan: none yet)
         self.verified = not self.judging
+        self.below = 0  # verdicts in a row under REFUSED_BELOW
 
     def add(self, row: np.ndarray) -> bool:
         """Record this frame's row of the lock; returns whether the lock is verified now."""
@@ -217,6 +224,7 @@ class LockVerifier:
         if len(self.rows) < self.min_frames:
             return self.verified
         self.probability = float(self.model.run({self._input_name: self.window_array()[None]})[0].reshape(-1)[0])
+        self.below = self.below + 1 if not self.probability >= REFUSED_BELOW else 0
         if not np.isfinite(self.probability):
             self.verified = False
         elif self.verified:
@@ -224,6 +232,12 @@ class LockVerifier:
         else:
             self.verified = self.probability >= self.threshold
         return self.verified
+
+    @property
+    def refused(self) -> bool:
+        """Whether the network has judged the lock not a drone over a whole window of verdicts in a row
+        (never REFUSED_BELOW or more), not merely held it back."""
+        return self.judging and self.below >= self.window
 
     def window_array(self) -> np.ndarray:
         """The last ``window`` rows [T, F], oldest first, zero rows in front while fewer."""
