@@ -293,10 +293,10 @@ class DetectorConfig(Section):
     # Issue 19's time budget: 16 candidates judged instead of 24, then 8 instead of 16, gave the same
     # eval lines (val, ir_val, negatives_val, val under ego-motion, synthetic 100-109, the tiny white
     # drones) and demo; on 1080p frames the cap binds (16 judged on nearly every GMD frame of the
-    # bench's clips, ~0.3 ms each) (docs/results.md "Speed"). 24 x 16 key points instead of the paper's 30 x 20 estimated the
-    # camera's motion as well against true homographies in two thirds of the time, but the demo's
-    # scene lost a third of its hits (TP 168 -> 107) and the tiny-drone and synthetic lines a few:
-    # 30 x 20 stays.
+    # bench's clips, ~0.3 ms each; docs/results.md "Speed"). 24 x 16 key points instead of the
+    # paper's 30 x 20 estimated the camera's motion as well against true homographies in two thirds
+    # of the time, but the demo's scene lost a third of its hits (TP 168 -> 107) and the tiny-drone
+    # and synthetic lines a few: 30 x 20 stays.
     global_: GlobalStageConfig = Field(
         GlobalStageConfig(appearance=AppearanceConfig(confidence=0.5),
                     motion=MotionConfig(alpha=0.0, open_iterations=0, min_blob_area_px=6, max_candidates=8)),

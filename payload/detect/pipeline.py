@@ -484,7 +484,8 @@ class Glad:
             # the region's camera motion, not one of its own: one estimate a frame
             found = self._motion(self.lmd, frame.image, prev.full[y1:y2, x1:x2], grey.full[y1:y2, x1:x2],
                                  camera.for_crop((x1, y1)), (x1, y1), time.perf_counter(), timings, candidates)
-        if self.cfg.global_.scan.points and self._scanned(frame) and not len(self._gate(found, predicted)[0]):
+        gated = self._gate(found, predicted)
+        if self.cfg.global_.scan.points and self._scanned(frame) and not len(gated[0]):
             # nothing near the prediction (a hit elsewhere in the region, a bird, is no reason not
             # to look for a small target's spot where it should be)
             t = time.perf_counter()
@@ -492,8 +493,9 @@ class Glad:
             candidates.append(spots)
             _add(timings, "points", _ms(t))
             found = Detections.concat([found, self._confirm(frame.image, spots, rescore=True, timings=timings)])
+            gated = self._gate(found, predicted)
         t = time.perf_counter()
-        near, near_distance, far = self._gate(found, predicted)
+        near, near_distance, far = gated
         best = self._pick(near, near_distance)
         others = [o for o in self.tracks if o is not track]
         if others and len(far):
