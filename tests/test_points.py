@@ -29,6 +29,19 @@ def test_a_white_and_a_black_spot_on_the_sky_are_found_with_their_boxes():
     assert np.all((found.score > 0.5) & (found.score < 1)) and list(found.module) == ["GAD", "GAD"]
 
 
+def test_a_spot_of_the_skys_grey_level_but_another_colour_is_found():
+    """A white drone on a pale sunlit sky: its grey level is the sky's, its blue is not."""
+    image = _sky()
+    sky = image[100:104, 60:64].astype(np.int16)
+    spot = sky.copy()
+    spot[..., 0] -= 30  # less blue ...
+    spot[..., 2] += 16  # ... more red: the grey level (0.114 B + 0.587 G + 0.299 R) moves by under 2
+    image[100:104, 60:64] = np.clip(spot, 0, 255).astype(np.uint8)
+    grey = (0.114 * image[..., 0] + 0.587 * image[..., 1] + 0.299 * image[..., 2]).round().astype(np.uint8)
+    assert len(PointDetector().detect(grey)) == 0  # in grey it is sky
+    assert _centres(PointDetector().detect(image)) == [(62, 102)]
+
+
 def test_faint_spots_noise_and_large_objects_are_not_spots():
     image = _sky()
     image[100:104, 60:64] += 5  # 5 grey levels: below min_contrast 8
@@ -77,25 +90,31 @@ def test_a_tiny_image_has_no_spots():
     assert len(PointDetector().detect(np.full((10, 10, 3), 128, np.uint8))) == 0
 
 
-def _grey_spot_frame(index, xy=(1000, 600), size_wh=(1280, 768)):
+def _grey_spot_frame(index, xy=(1000, 600), size_wh=(1280, 768), colour=False):
     """A dim sky (60-90 grey) with a 4 px spot at 120: too dim for the bright-spot network (it
-    answers above mid-grey), plain to the spot detector."""
+    answers above mid-grey), plain to the spot detector. ``colour``: the spot the sky's grey level
+    but less blue and more red, plain in the blue and red channels only."""
     from payload.types import Frame
 
     image = _sky(size_wh[1], size_wh[0], seed=index) // 2
-    image[xy[1]:xy[1] + 4, xy[0]:xy[0] + 4] = 120
+    spot = np.s_[xy[1]:xy[1] + 4, xy[0]:xy[0] + 4]
+    if colour:
+        image[spot + (0,)] -= 30
+        image[spot + (2,)] += 16
+    else:
+        image[spot] = 120
     return Frame(image, index, index * 33_000_000, 0)
 
 
-@pytest.mark.parametrize("points", [True, False])
-def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points):
+@pytest.mark.parametrize("points, colour", [(True, False), (True, True), (False, False)])
+def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points, colour):
     from test_pipeline import _spot_glad
 
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
                                    "detector.global.scan.tiles_per_frame": 2, "detector.global.scan.points": points,
                                    "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it either
                                    "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    results = [glad.process(_grey_spot_frame(i)) for i in range(20)]  # 15 tiles: 8 scans, GAD's turn between
+    results = [glad.process(_grey_spot_frame(i, colour=colour)) for i in range(20)]  # 15 tiles: 8 scans, GAD's turn between
     hits = [r for r in results if len(r.detections)]
     if not points:
         assert not hits and all(len(r.candidates) == 0 for r in results)  # the network never sees it

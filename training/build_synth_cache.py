@@ -9,6 +9,11 @@ synth_cls.npz: x [K, 32, 32, 3] classifier patches (payload.detect.patches), y [
   python training/build_synth_cache.py [--scenes 40] [--frames 90]
   python training/build_synth_cache.py --name synth_light --first-seed 1300 --target-px 2 8 \
       --drone light --sky clear --in-sky        # tiny light drones against a bright sky (issue 16)
+
+``--min-noise K``: a drone patch is a positive only where the drone stands out from the sky around it
+by K noise units or more in some colour channel (bench/tiny_contrast.py's measure): beside the sun a
+light drone can vanish, and a blank patch of sky taught as "drone" would teach the classifier to pass
+sky.
 """
 
 import argparse
@@ -38,6 +43,24 @@ def compensated_blobs(prev, img, homography, avoid, n):
     return diff_blobs(warped, img, avoid, n)
 
 
+def _noise_units(channel: np.ndarray, xyxy, ring_px: int = 8) -> float:
+    """How far the box's most different pixel stands from the median of a ring around it, over the
+    ring's noise (1.4826 x MAD, at least 1): bench/tiny_contrast.py's measure, on one channel."""
+    h, w = channel.shape
+    x1, y1, x2, y2 = (int(round(v)) for v in xyxy)
+    x1, y1, x2, y2 = max(0, x1), max(0, y1), min(w, x2), min(h, y2)
+    if x2 <= x1 or y2 <= y1:
+        return 0.0
+    X1, Y1, X2, Y2 = max(0, x1 - ring_px), max(0, y1 - ring_px), min(w, x2 + ring_px), min(h, y2 + ring_px)
+    outer = channel[Y1:Y2, X1:X2].astype(np.float32)
+    mask = np.ones(outer.shape, bool)
+    mask[y1 - Y1:y2 - Y1, x1 - X1:x2 - X1] = False
+    ring = outer[mask]
+    med = float(np.median(ring))
+    noise = max(1.0, 1.4826 * float(np.median(np.abs(ring - med))))
+    return float(np.abs(channel[y1:y2, x1:x2].astype(np.float32) - med).max()) / noise
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", type=int, default=40)
@@ -50,6 +73,7 @@ def main():
     ap.add_argument("--drone", choices=("any", "light"), default="any", help="airframe colour (payload.synth)")
     ap.add_argument("--sky", choices=("any", "clear"), default="any", help="sky (clear: blue with the sun's glare)")
     ap.add_argument("--in-sky", action="store_true", help="keep the drone above the horizon")
+    ap.add_argument("--min-noise", type=float, default=0.0, help="positives only where the drone stands out this much")
     args = ap.parse_args()
     os.makedirs(args.cache, exist_ok=True)
     rng = np.random.default_rng(1)
@@ -74,6 +98,8 @@ def main():
                     images.append(c.copy())
                     boxes.append(np.full(4, np.nan, np.float32))
             if sf.index % 3 == 0:
+                if visible and args.min_noise > 0:
+                    visible = max(_noise_units(img[..., c], box) for c in range(3)) >= args.min_noise
                 if visible:
                     pos = [jitter(rng, np.asarray(box, np.float32)) for _ in range(2)]
                     cls_x.append(crop_patches(img, np.array(pos)))

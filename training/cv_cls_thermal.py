@@ -28,6 +28,8 @@ optimistic as the shipped networks (they saw most drone clips). Every stage is s
 and training resumes from its checkpoint (training/cv_train.py's run_stage):
 
   nice -n 10 python training/cv_cls_thermal.py --init training/cache/cls5.onnx --log training/runs/cv/clsir2/train.log
+
+``--light`` adds issue 16's tiny light drones on a clear sky (``--tag clsB``, 2026-12-06).
 """
 
 import argparse
@@ -61,6 +63,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--hard-frac", type=float, default=0.25)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--log", default=None)
+    ap.add_argument("--light", action="store_true",
+                    help="also the tiny light drones on a clear sky (synth_light: seeds 1300+, 2-8 px, positives only "
+                         "where the drone stands out by 5 noise units), twice")
     args = ap.parse_args(argv)
     log = Log(args.log)
     folds = load_folds()
@@ -82,6 +87,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     run_stage(log, "module candidates", os.path.join(cache, ".done-mined1"),
               [PY, "training/mine_candidates.py", os.path.join(SHIPPED, "glad_local.onnx"), "--name", "mined1",
                "--scenes", "30", "--halmstad", "train", "negatives_train"], [synth[2]])
+    if args.light:
+        light = os.path.join(cache, "synth_light_cls.npz")
+        run_stage(log, "tiny light drone patches", os.path.join(cache, ".done-synth_light"),
+                  [PY, "training/build_synth_cache.py", "--name", "synth_light", "--first-seed", "1300", "--scenes", "30",
+                   "--target-px", "2", "8", "--drone", "light", "--sky", "clear", "--in-sky", "--min-noise", "5"], [light])
+        synth = synth + (light, light)  # a few thousand patches among ~100,000: listed twice
     objects = []
     for fold in range(folds.k):
         clips = [n for n in select(names, "IR", True) if folds.fold_of(n) == fold]

@@ -383,7 +383,7 @@ class Glad:
             # a 3-6 px white drone on the sky: the networks hardly answer to it (docs/results.md,
             # tiny light drones); the spots, like the scan's hits, need the lock bar
             t = time.perf_counter()
-            spots = self._spots(grey.full)
+            spots = self._spots(frame.image)
             _add(timings, POINTS, _ms(t))
             candidates.append(spots)
             found = keep(self._classify(frame.image, spots, timings, threshold=max(
@@ -560,18 +560,18 @@ class Glad:
         timings["scan"] = _ms(t)
         return Detections(found.xyxy, found.score, np.full(len(found), GAD, "<U3"))
 
-    def _spots(self, grey: np.ndarray) -> Detections:
+    def _spots(self, image: np.ndarray) -> Detections:
         """The isolated spots (as GAD hits) in this turn's band of rows: the frame cut into bands of
         at most SPOT_BAND_PX pixels, searched in turn, so that a turn stays within a module's budget
         (issue 19); each band read with a margin, so that what is found is what the whole frame gives."""
-        h, w = grey.shape[:2]
+        h, w = image.shape[:2]
         bands = max(1, -(-h * w // SPOT_BAND_PX))
         k = self._spot_band % bands
         self._spot_band = (k + 1) % bands
         y0, y1 = h * k // bands, h * (k + 1) // bands
         margin = self.points.margin_px
         top = max(0, y0 - margin)
-        found = self.points.detect(grey[top:min(h, y1 + margin)], offset_xy=(0.0, float(top)))
+        found = self.points.detect(image[top:min(h, y1 + margin)], offset_xy=(0.0, float(top)))
         if not len(found):
             return found
         cy = found.centers[:, 1]

@@ -2,12 +2,13 @@
 
 A 3-6 px white drone against the sky is one or two pixels in GAD's down-scaled input, the local
 network barely answers to it (it learned dark drones), and while it hovers there is no motion to
-find. What it still is: a small spot brighter or darker than its surroundings, with nothing like
-it around (sky, haze). Here: the morphological top-hat and black-hat (spots smaller than
-``kernel_px``) and, per spot, its response over the largest response in a ring around it; a spot
-on textured ground or a cloud edge has neighbours as strong as itself and scores low. What passes
-is a candidate only: the scan hands it to the classifier at the lock bar, and the lock verifier
-judges the track before anything is reported. Not in the paper.
+find. What it still is: a small spot brighter or darker than its surroundings in some colour
+channel, with nothing like it around (sky, haze). Here: the morphological top-hat and black-hat
+(spots smaller than ``kernel_px``) of each channel, the largest of them, and, per spot, its
+response over the largest response in a ring around it; a spot on textured ground or a cloud edge
+has neighbours as strong as itself and scores low. What passes is a candidate only: the scan
+hands it to the classifier at the lock bar, and the lock verifier judges the track before anything
+is reported. Not in the paper.
 """
 
 from typing import Optional, Tuple
@@ -57,11 +58,9 @@ class PointDetector:
 
     def detect(self, image_bgr: np.ndarray, offset_xy=(0.0, 0.0), module: str = GAD) -> Detections:
         """``module``: whose hits they are (GAD on the scan's tiles, LAD in a search region)."""
-        grey = image_bgr if image_bgr.ndim == 2 else cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
-        if min(grey.shape[:2]) < _RING_PX:
+        if min(image_bgr.shape[:2]) < _RING_PX:
             return Detections.empty()
-        response = np.maximum(cv2.morphologyEx(grey, cv2.MORPH_TOPHAT, self.kernel),
-                              cv2.morphologyEx(grey, cv2.MORPH_BLACKHAT, self.kernel))
+        response = self.response(image_bgr)
         ring = ring_max(response)
         # isolation = response / (ring + 4) >= min_isolation, in 8 bit over the whole frame (a 1080p
         # frame in ~8 ms; in float, 13): response >= ceil(min_isolation * (ring + 4)), the bar rounded
@@ -92,6 +91,17 @@ class PointDetector:
         # score: the isolation mapped into (0, 1) so that it ranks beside network scores
         score = 1.0 - 1.0 / np.asarray(scores, np.float32)[order]
         return Detections(xyxy, score, module)
+
+    def response(self, image: np.ndarray) -> np.ndarray:
+        """The spot response (uint8): the larger of the top-hat and black-hat, in each colour channel
+        and the largest of those. A white drone against a pale, sunlit sky is nearly the sky's grey
+        level, yet its blue stands 5-10 noise units below the sky's (the grey average hides it)."""
+        response = np.maximum(cv2.morphologyEx(image, cv2.MORPH_TOPHAT, self.kernel),
+                              cv2.morphologyEx(image, cv2.MORPH_BLACKHAT, self.kernel))
+        if response.ndim == 3:
+            b, g, r = cv2.split(response)
+            response = cv2.max(cv2.max(b, g), r)
+        return response
 
     def centre(self, grey: np.ndarray, xyxy, margin_px: int = 2) -> Optional[Tuple[float, float]]:
         """The centre of the isolated spot in a small box (no larger than a spot), or None where there
