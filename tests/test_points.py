@@ -129,13 +129,14 @@ def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points
 
 
 @pytest.mark.parametrize("size_wh, xy, first", [
-    ((1280, 768), (1000, 600), 2), ((1280, 768), (0, 0), 2), ((1280, 768), (1276, 764), 2),  # one band
-    ((1920, 1080), (1000, 200), 2), ((1920, 1080), (1916, 1076), 5),  # two bands: the lower one's turn is next
-    ((1920, 1080), (960, 536), 2), ((1920, 1080), (960, 540), 5),  # either side of the cut (centre y 538, 542)
+    ((1280, 768), (1000, 200), 2), ((1280, 768), (0, 0), 2), ((1280, 768), (1276, 764), 5),  # two bands
+    ((1920, 1080), (1000, 200), 2), ((1920, 1080), (1916, 1076), 8),  # three bands, in turn from the top
+    ((1920, 1080), (960, 356), 2), ((1920, 1080), (960, 360), 5),  # either side of a cut (centre y 358, 362)
+    ((1920, 1080), (960, 716), 5), ((1920, 1080), (960, 720), 8),  # ... and of the next (718, 722)
 ])
 def test_the_spot_look_covers_the_whole_frame_in_its_turns(tmp_path, size_wh, xy, first):
     # the spots are a global look of their own over the whole frame, a band of rows (at most
-    # SPOT_BAND_PX pixels: a 1080p frame in two) a turn: a spot anywhere, the frame's corners and the
+    # SPOT_BAND_PX pixels: a 1080p frame in three) a turn: a spot anywhere, the frame's corners and the
     # bands' cut included, is found in its band's first turn
     from test_pipeline import _spot_glad
 
@@ -163,10 +164,10 @@ def test_the_bands_find_what_the_whole_frame_gives(tmp_path):
     grey = _sky(1080, 1920, seed=5)[..., 0]
     for x, y in zip(rng.integers(0, 1916, 400), rng.integers(0, 1076, 400)):
         grey[y:y + 3, x:x + 3] = rng.integers(0, 256)  # spots of either polarity, some near the cut
-    grey[520:560, 100:1900:37] = 250  # a row of spots across the cut
+    grey[340:380, 100:1900:37] = 250  # a row of spots across a cut
     whole = PointDetector(max_points=10_000).detect(grey)
-    bands = [glad._spots(grey) for _ in range(2)]
-    assert len(bands[0]) and len(bands[1])
+    bands = [glad._spots(grey) for _ in range(3)]
+    assert all(len(band) for band in bands)
     by_box = lambda d: sorted(zip(map(tuple, d.xyxy.tolist()), d.score.tolist()))  # noqa: E731
     assert by_box(Detections.concat(bands)) == by_box(whole)
 

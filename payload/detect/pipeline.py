@@ -54,8 +54,9 @@ from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
 
 SCAN = "scan"  # the global stage's native-resolution looks: the local network on tiles (payload.detect.scan)
 POINTS = "points"  # ... and isolated spots over the whole frame (payload.detect.points), a band a turn
-# at most this many pixels a band (a 1080p frame in two, 1280x720 whole): ~6 ms on one core
-SPOT_BAND_PX = 1_100_000
+# at most this many pixels a band (a 1080p frame in three, 1280x720 in two): ~6 ms on one core, the
+# three colour channels' spots costing twice the grey level's
+SPOT_BAND_PX = 700_000
 
 log = logging.getLogger(__name__)
 
