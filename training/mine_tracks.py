@@ -1,8 +1,8 @@
 """Mine the locks GLAD follows, frame by frame, for the lock verifier (payload/detect/verify.py).
 
 Runs GLAD with the default config (the shipped models, or with --fold-models DIR each clip's fold's
-networks from DIR/fold{k}/, so that a fold is mined by networks that never saw it) over Halmstad
-clips and synthetic scenes, and keeps, for every frame in which GLAD follows a lock (reported or
+networks from DIR/fold{k}/, so that a fold is mined by networks that never saw it, and the synthetic
+scenes by DIR/all/, the networks that would ship) over Halmstad clips and synthetic scenes, and keeps, for every frame in which GLAD follows a lock (reported or
 not), the verifier's feature row, the lock's number within the clip, whether LockCheck has
 confirmed it, the box that frame would report, and the drone's labelled box nearest to it. The
 rows are written per clip to OUT/<clip>.npz, so an interrupted run resumes where it stopped and
@@ -28,7 +28,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.config import config_with, load_config  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
 from payload.detect.verify import N_FEATURES, PATCH_PX, target_patch  # noqa: E402
-from payload.eval.cv import fold_model_files, halmstad_clips  # noqa: E402
+from payload.eval.cv import MODEL_FILES, fold_model_files, halmstad_clips  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
@@ -168,7 +168,9 @@ def main():
     def make_glad(fold):
         det = cfg
         if args.fold_models:
-            det = config_with(cfg, **fold_model_files(args.fold_models, [fold])[fold])
+            files = (fold_model_files(args.fold_models, [fold])[fold] if fold >= 0 else
+                     {key: os.path.join(args.fold_models, "all", name) for key, name in MODEL_FILES})
+            det = config_with(cfg, **files)
         # the verifier off: every lock is followed and reported as today, its rows recorded all the
         # same; one target at a time: a lock's rows are one track's
         return Glad(det.detector.model_copy(update={
