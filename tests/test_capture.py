@@ -219,7 +219,9 @@ def test_live_pipeline_that_ends_is_a_lost_camera_and_is_reopened(gst, caplog):
         while time.monotonic() < end:
             frame = src.read(0.05)
             seen.append((time.monotonic(), None if frame is None else frame.index, src.stats.connected))
-        reconnects = src.stats.reconnects
+    # counted once the capture thread has stopped: read inside the block, a reconnect finishing
+    # between the count and the close was logged but not counted (CI, 2026-12-06: 4 logged, 3 counted)
+    reconnects = src.stats.reconnects
     assert reconnects >= 2
     nones_down = [s for s in seen if s[1] is None and not s[2]]
     assert len(nones_down) >= 3, "read() must return None while the camera is down"
