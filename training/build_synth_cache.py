@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench.tiny_contrast import contrast  # noqa: E402
 from payload.detect.patches import crop_patches  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
 from training.build_cache import (  # noqa: E402
@@ -43,22 +44,11 @@ def compensated_blobs(prev, img, homography, avoid, n):
     return diff_blobs(warped, img, avoid, n)
 
 
-def _noise_units(channel: np.ndarray, xyxy, ring_px: int = 8) -> float:
-    """How far the box's most different pixel stands from the median of a ring around it, over the
-    ring's noise (1.4826 x MAD, at least 1): bench/tiny_contrast.py's measure, on one channel."""
-    h, w = channel.shape
-    x1, y1, x2, y2 = (int(round(v)) for v in xyxy)
-    x1, y1, x2, y2 = max(0, x1), max(0, y1), min(w, x2), min(h, y2)
-    if x2 <= x1 or y2 <= y1:
-        return 0.0
-    X1, Y1, X2, Y2 = max(0, x1 - ring_px), max(0, y1 - ring_px), min(w, x2 + ring_px), min(h, y2 + ring_px)
-    outer = channel[Y1:Y2, X1:X2].astype(np.float32)
-    mask = np.ones(outer.shape, bool)
-    mask[y1 - Y1:y2 - Y1, x1 - X1:x2 - X1] = False
-    ring = outer[mask]
-    med = float(np.median(ring))
-    noise = max(1.0, 1.4826 * float(np.median(np.abs(ring - med))))
-    return float(np.abs(channel[y1:y2, x1:x2].astype(np.float32) - med).max()) / noise
+def _noise_units(channel: np.ndarray, xyxy) -> float:
+    """How far the drone in box ``xyxy`` stands out from its ring in one channel, in noise units
+    (bench/tiny_contrast.py's measure); 0 where there is no ring to measure against."""
+    measured = contrast(channel, xyxy)
+    return measured[1] if measured is not None else 0.0
 
 
 def main():
