@@ -287,6 +287,23 @@ def test_cv_command_on_a_tiny_data_set(tiny_halmstad, tmp_path, capsys):
     assert json.loads((tmp_path / "again.json").read_text())["summary"] == summary
 
 
+def test_fold_model_files_of_a_fold_and_of_all_folds(tmp_path):
+    from payload.offline import UsageError
+
+    for sub in ("fold1", "all"):
+        (tmp_path / sub).mkdir()
+        for _, name in cv.MODEL_FILES:
+            (tmp_path / sub / name).write_bytes(b"onnx")
+    files = cv.fold_model_files(str(tmp_path), [1, "all"])
+    assert files[1]["detector.classifier.model"] == str(tmp_path / "fold1" / "glad_classifier.onnx")
+    assert files["all"]["detector.classifier.model"] == str(tmp_path / "all" / "glad_classifier.onnx")
+    assert sorted(files["all"]) == sorted(key for key, _ in cv.MODEL_FILES)
+    os.remove(str(tmp_path / "all" / "glad_local.onnx"))
+    with pytest.raises(UsageError, match="all/glad_local.onnx") as raised:
+        cv.fold_model_files(str(tmp_path), ["all", 0])
+    assert "fold0/glad_global.onnx" in str(raised.value)  # every missing file, in one line
+
+
 def test_cv_command_with_fold_models(tiny_halmstad, tmp_path, capsys):
     root, folds = tiny_halmstad
     models = tmp_path / "models"

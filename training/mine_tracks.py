@@ -28,7 +28,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.config import config_with, load_config  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
 from payload.detect.verify import N_FEATURES, PATCH_PX, target_patch  # noqa: E402
-from payload.eval.cv import MODEL_FILES, fold_model_files, halmstad_clips  # noqa: E402
+from payload.eval.cv import fold_model_files, halmstad_clips  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
@@ -168,9 +168,8 @@ def main():
     def make_glad(fold):
         det = cfg
         if args.fold_models:
-            files = (fold_model_files(args.fold_models, [fold])[fold] if fold >= 0 else
-                     {key: os.path.join(args.fold_models, "all", name) for key, name in MODEL_FILES})
-            det = config_with(cfg, **files)
+            which = fold if fold >= 0 else "all"
+            det = config_with(cfg, **fold_model_files(args.fold_models, [which])[which])
         # the verifier off: every lock is followed and reported as today, its rows recorded all the
         # same; one target at a time: a lock's rows are one track's
         return Glad(det.detector.model_copy(update={

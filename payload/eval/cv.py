@@ -19,7 +19,7 @@ import logging
 import math
 import os
 from dataclasses import dataclass
-from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -113,13 +113,14 @@ def fold_clips(clips: Sequence[ClipSpec], folds: Folds, limit_clips: int = 0) ->
     return out
 
 
-def fold_model_files(models_dir: str, folds: Sequence[int]) -> Dict[int, Dict[str, str]]:
-    """Per fold, config key -> ONNX file under ``models_dir``/fold{k}/; all must exist."""
+def fold_model_files(models_dir: str, folds: Sequence[Union[int, str]]) -> Dict[Union[int, str], Dict[str, str]]:
+    """Per fold, config key -> ONNX file under ``models_dir``/fold{k}/ (``models_dir``/all/ for the
+    fold "all": the networks trained on every fold); all must exist."""
     out, missing = {}, []
     for fold in folds:
         files = {}
         for key, name in MODEL_FILES:
-            path = os.path.join(models_dir, "fold%d" % fold, name)
+            path = os.path.join(models_dir, "all" if fold == "all" else "fold%d" % fold, name)
             if not os.path.isfile(path):
                 missing.append(path)
             files[key] = path
