@@ -40,6 +40,10 @@ def test_a_spot_of_the_skys_grey_level_but_another_colour_is_found():
     grey = (0.114 * image[..., 0] + 0.587 * image[..., 1] + 0.299 * image[..., 2]).round().astype(np.uint8)
     assert len(PointDetector().detect(grey)) == 0  # in grey it is sky
     assert _centres(PointDetector().detect(image)) == [(62, 102)]
+    # a frame of other channels than BGR is read the same way, not refused
+    alpha = np.concatenate([image, np.full(image.shape[:2] + (1,), 255, np.uint8)], axis=2)
+    assert _centres(PointDetector().detect(alpha)) == [(62, 102)]
+    assert _centres(PointDetector().detect(image[..., :1])) == [(62, 102)]  # blue alone: the spot 30 darker
 
 
 def test_faint_spots_noise_and_large_objects_are_not_spots():

@@ -98,9 +98,11 @@ class PointDetector:
         level, yet its blue stands 5-10 noise units below the sky's (the grey average hides it)."""
         response = np.maximum(cv2.morphologyEx(image, cv2.MORPH_TOPHAT, self.kernel),
                               cv2.morphologyEx(image, cv2.MORPH_BLACKHAT, self.kernel))
-        if response.ndim == 3:
-            b, g, r = cv2.split(response)
-            response = cv2.max(cv2.max(b, g), r)
+        if response.ndim == 3:  # whatever the channels (BGR, BGRA, one): the largest of them
+            channels = cv2.split(response)
+            response = channels[0]
+            for channel in channels[1:]:
+                response = cv2.max(response, channel)
         return response
 
     def centre(self, grey: np.ndarray, xyxy, margin_px: int = 2) -> Optional[Tuple[float, float]]:
