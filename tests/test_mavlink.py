@@ -244,6 +244,9 @@ def check_exchange(fake, link, payload, t_from, t_synced):
 
     # attitude interpolated at frame times matches the scripted trajectory (yaw crosses +-pi here)
     now_ns = time.monotonic_ns()
+    # the samples that bracket the window's end are stamped before now; a relay (MAVProxy) under load
+    # delivers them tens of ms later, and a time past the newest delivered sample reads it held
+    time.sleep(0.2)
     errs, yaws = [], []
     for t_ns in range(now_ns - 3_000_000_000, now_ns - 30_000_000, 5_000_000):
         att = link.attitude_at(t_ns)
