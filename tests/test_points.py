@@ -200,6 +200,36 @@ def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
     assert after.mode == "local" and not len(after.detections) and len(after.candidates) == 1
 
 
+def test_a_followed_spot_among_noise_nearly_as_strong_is_kept_where_the_search_would_not_propose_it(tmp_path):
+    # a 4 px drone on a noisy sky stands only 1.1-1.5x above the largest noise response in its ring
+    # (seed 304 of the tiny white drones): the whole-frame look needs 1.5x, the search region 1.2x
+    from test_pipeline import _spot_glad
+
+    from payload.detect.pipeline import LOCAL_SPOT_ISOLATION
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.tiles_per_frame": 2, "detector.local.appearance.confidence": 0.5,
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+    i = 0
+    while not len(glad.process(_grey_spot_frame(i)).detections):
+        i += 1
+        assert i < 20
+    results = []
+    for j in range(i + 1, i + 6):
+        frame = _grey_spot_frame(j)
+        sky = int(frame.image[590, 1010, 0])
+        frame.image[601:603, 1010:1012] = sky + 18  # a noise speck 10 px off, in the spot's ring: isolation 1.3-1.4
+        found = PointDetector().detect(frame.image[450:750, 850:1150], offset_xy=(850, 450))
+        assert (1002, 602) not in _centres(found)  # not isolated enough for the whole-frame look ...
+        near = PointDetector().detect(frame.image[450:750, 850:1150], offset_xy=(850, 450),
+                                      min_isolation=LOCAL_SPOT_ISOLATION)
+        assert (1002, 602) in _centres(near)  # ... enough where the lock's prediction is
+        results.append(glad.process(frame))
+    for r in results:
+        assert r.mode == "local" and len(r.detections), r.state  # measured, not coasting
+        assert np.allclose(r.target.xyxy, [999, 599, 1005, 605], atol=3)
+
+
 def test_a_hit_elsewhere_in_the_region_does_not_stop_the_spots_near_the_prediction(tmp_path):
     # a followed small drone that LAD does not see, and in its region, farther than the jump gate,
     # something LAD does see (a bird): the spots still look for the drone (seed 307 of the tiny white
@@ -256,6 +286,16 @@ def test_the_8_bit_isolation_bar_is_the_rule_exactly(background, ring_peak, spot
     assert _centres(found) == ([(30, 30)] if isolated else [])
     if isolated:
         assert found.score[0] == pytest.approx(1.0 - (ring_peak + 4.0) / spot)
+
+
+@pytest.mark.parametrize("spot, isolated", [(17, True), (16, False)])  # 1.2 x (10 + 4) = 16.8
+def test_a_call_may_take_its_own_isolation_bar(spot, isolated):
+    image = np.full((60, 60), 100, np.uint8)
+    image[30, 30] = 100 + spot
+    image[38, 38] = 110
+    detector = PointDetector()
+    assert _centres(detector.detect(image, min_isolation=1.2)) == ([(30, 30)] if isolated else [])
+    assert len(detector.detect(image)) == 0 and detector.min_isolation == 1.5  # its own bar as before
 
 
 def test_a_small_box_off_its_spot_is_moved_onto_the_spot():

@@ -57,6 +57,11 @@ POINTS = "points"  # ... and isolated spots over the whole frame (payload.detect
 # at most this many pixels a band (a 1080p frame in three, 1280x720 in two): ~6 ms on one core, the
 # three colour channels' spots costing twice the grey level's
 SPOT_BAND_PX = 700_000
+#: The spots' isolation bar in a search region (the whole frame's is 1.5: PointDetector): where the
+#: prediction says a lock's target is, a spot 1.2x the largest response around it is enough for the
+#: classifier to judge. A 4 px white drone on a noisy sky stands 1.1-1.5x above the noise's extremes
+#: in its ring, and the lock coasted through those frames (docs/results.md, 2026-12-06).
+LOCAL_SPOT_ISOLATION = 1.2
 
 log = logging.getLogger(__name__)
 
@@ -490,7 +495,8 @@ class Glad:
             # nothing near the prediction (a hit elsewhere in the region, a bird, is no reason not
             # to look for a small target's spot where it should be)
             t = time.perf_counter()
-            spots = self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1), module=LAD)
+            spots = self.points.detect(frame.image[y1:y2, x1:x2], offset_xy=(x1, y1), module=LAD,
+                                       min_isolation=LOCAL_SPOT_ISOLATION)
             candidates.append(spots)
             _add(timings, "points", _ms(t))
             found = Detections.concat([found, self._confirm(frame.image, spots, rescore=True, timings=timings)])

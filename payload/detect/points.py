@@ -56,8 +56,10 @@ class PointDetector:
         self.min_contrast, self.min_isolation = float(min_contrast), float(min_isolation)
         self.max_points = int(max_points)
 
-    def detect(self, image_bgr: np.ndarray, offset_xy=(0.0, 0.0), module: str = GAD) -> Detections:
-        """``module``: whose hits they are (GAD on the scan's tiles, LAD in a search region)."""
+    def detect(self, image_bgr: np.ndarray, offset_xy=(0.0, 0.0), module: str = GAD,
+               min_isolation: Optional[float] = None) -> Detections:
+        """``module``: whose hits they are (GAD on the scan's tiles, LAD in a search region);
+        ``min_isolation``: this call's bar instead of the detector's own."""
         if min(image_bgr.shape[:2]) < _RING_PX:
             return Detections.empty()
         response = self.response(image_bgr)
@@ -66,7 +68,7 @@ class PointDetector:
         # frame in ~8 ms; in float, 13): response >= ceil(min_isolation * (ring + 4)), the bar rounded
         # up by convertScaleAbs, and no pass where that bar is beyond 255. +4 grey levels: a faint spot
         # on a perfectly flat patch is not infinitely isolated.
-        a = self.min_isolation
+        a = self.min_isolation if min_isolation is None else float(min_isolation)
         bar = cv2.convertScaleAbs(ring, alpha=a, beta=4.0 * a + 0.5 - 1e-3)
         spots = cv2.compare(response, bar, cv2.CMP_GE)
         spots &= cv2.compare(response, self.min_contrast, cv2.CMP_GE)
