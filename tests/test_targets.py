@@ -355,6 +355,19 @@ def test_a_lock_never_reported_does_not_blind_the_search_with_one_target(tmp_pat
     ran = ["GAD" in r.timings_ms for r in results]
     assert not any(ran[:window - 1]) and any(ran[window - 1:])
     assert [t.id for t in glad.tracks] == [2] and glad.tracks[0].box()[0] == B[0]
+    # refused and alone, it is kept (the same spot does not start a new lock), and the global stage
+    # looks on every frame, not every search_every: nothing is reported meanwhile (seeds 309 and 318
+    # of the tiny white drones: a lock the verifier refused held the place while the drone was in view)
+    glad = _spot_glad(tmp_path, **{**stale, "detector.classifier.confirm_threshold": 0.05,
+                                   "detector.verifier.enabled": True, "detector.verifier.threshold": 0.5,
+                                   "detector.verifier.release_threshold": 0.5, "detector.verifier.min_frames": 1,
+                                   "detector.verifier.model": str(tmp_path / "v.onnx")})
+    glad.process(_spots(0, [dim]))
+    results = [glad.process(_spots(i, [dim])) for i in range(1, window + 8)]
+    ran = ["GAD" in r.timings_ms for r in results]
+    assert not any(ran[:window - 1]) and all(ran[window:]), ran
+    assert glad.tracks[0].verifier.refused and [t.id for t in glad.tracks] == [1]
+    assert not any(r.targets for r in results)
     # an operator's lock is never given up this way
     glad = _spot_glad(tmp_path, **stale)
     glad.process(_spots(0, [dim]))

@@ -29,7 +29,8 @@ rule picks the one sent to the autopilot. With ``max`` 1 this is the single-targ
 one thing: a lock the classifier has neither confirmed nor dropped over LockCheck's window
 (``lock_hits`` frames, at least ``search_every``; a speck) does not blind the search. While every
 place is held and such a stale lock is among them, the global stage runs every ``search_every``
-frames, and a strong, confirmed hit that belongs to no track takes the stalest one's place.
+frames (every frame once the verifier has refused it: nothing is reported meanwhile), and a strong,
+confirmed hit that belongs to no track takes the stalest one's place.
 """
 
 import dataclasses
@@ -319,12 +320,14 @@ class Glad:
     def _search_due(self) -> bool:
         """Whether the global stage runs this frame: always while no target is followed locally;
         with room for another target, every frame while none is reported, else every search_every;
-        with no room, every search_every while a stale lock could give its place."""
+        with no room, every search_every while a stale lock could give its place, every frame while
+        the verifier refuses it (a bird or clutter held the only place while the drone was in view)."""
         if not self.tracks:
             return True
         t = self.cfg.targets
         if len(self.tracks) >= t.max:
-            return self._since_search + 1 >= t.search_every and self._stalest() is not None
+            stale = self._stalest()
+            return stale is not None and (stale.verifier.refused or self._since_search + 1 >= t.search_every)
         if not any(track.reported for track in self.tracks):
             return True
         return self._since_search + 1 >= t.search_every
