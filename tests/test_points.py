@@ -184,7 +184,8 @@ def test_no_spots_where_the_global_input_keeps_most_of_the_resolution(tmp_path):
     assert not any(len(r.candidates) for r in results)  # 640x512 is not scanned: Halmstad's clips unchanged
 
 
-def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
+def _locked_on_the_spot(tmp_path):
+    """GLAD (the spot cue, no classifier bar) and the first frame index after it reported the spot."""
     from test_pipeline import _spot_glad
 
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
@@ -194,28 +195,25 @@ def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
     while not len(glad.process(_grey_spot_frame(i)).detections):
         i += 1
         assert i < 20  # 15 tiles: 8 scans, GAD's turn between
+    return glad, i + 1
+
+
+def test_the_local_stages_spots_must_convince_the_classifier(tmp_path):
+    glad, i = _locked_on_the_spot(tmp_path)
     # the brightness classifier gives this dim patch well under 0.5
     glad.models.classifier.update_config(glad.cfg.classifier.model_copy(update={"threshold": 0.5}))
-    after = glad.process(_grey_spot_frame(i + 1))
+    after = glad.process(_grey_spot_frame(i))
     assert after.mode == "local" and not len(after.detections) and len(after.candidates) == 1
 
 
 def test_a_followed_spot_among_noise_nearly_as_strong_is_kept_where_the_search_would_not_propose_it(tmp_path):
     # a 4 px drone on a noisy sky stands only 1.1-1.5x above the largest noise response in its ring
     # (seed 304 of the tiny white drones): the whole-frame look needs 1.5x, the search region 1.2x
-    from test_pipeline import _spot_glad
-
     from payload.detect.pipeline import LOCAL_SPOT_ISOLATION
 
-    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
-                                   "detector.global.scan.tiles_per_frame": 2, "detector.local.appearance.confidence": 0.5,
-                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    i = 0
-    while not len(glad.process(_grey_spot_frame(i)).detections):
-        i += 1
-        assert i < 20
+    glad, i = _locked_on_the_spot(tmp_path)
     results = []
-    for j in range(i + 1, i + 6):
+    for j in range(i, i + 5):
         frame = _grey_spot_frame(j)
         sky = int(frame.image[590, 1010, 0])
         frame.image[601:603, 1010:1012] = sky + 18  # a noise speck 10 px off, in the spot's ring: isolation 1.3-1.4
