@@ -5,7 +5,7 @@ The scenes are training/mine_tracks.py's SYN_EMPTY kind (150 frames, 8 cars, bir
 the camera turning, no drone rendered), so "a target reported" is a false target in every frame.
 Prints per seed the frames with a target, then the share over all of them.
 
-    python bench/drone_free.py                 # seeds 6100-6107 (mining uses 6000-6095)
+    python bench/drone_free.py                 # seeds 6100-6107 (mining uses 6000-6095 and 6200-6295)
     python bench/drone_free.py --first-seed 6100 --scenes 100 --config my.yaml
 """
 
@@ -24,7 +24,7 @@ from training.mine_tracks import synthetic_scene  # noqa: E402
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--first-seed", type=int, default=6100, help="the first scene's seed (mining uses 6000-6095)")
+    ap.add_argument("--first-seed", type=int, default=6100, help="the first scene's seed (mining uses 6000-6095 and 6200-6295)")
     ap.add_argument("--scenes", type=int, default=8, help="scenes: seeds FIRST .. FIRST + SCENES - 1")
     ap.add_argument("--frames", type=int, default=150, help="frames per scene")
     ap.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")

@@ -2,6 +2,7 @@
 
 import os
 import sys
+from types import SimpleNamespace
 
 import pytest
 
@@ -10,7 +11,7 @@ pytest.importorskip("torch")  # training/ needs the training environment
 from payload.eval.folds import Folds  # noqa: E402
 from training.cv_cls_thermal import hard_sets  # noqa: E402
 from training.cv_train import Log, run_stage, select  # noqa: E402
-from training.mine_tracks import fold_of  # noqa: E402
+from training.mine_tracks import check_synthetic_range, fold_of, jobs  # noqa: E402
 from training.train_verifier import choose  # noqa: E402
 
 NAMES = ["V_DRONE_001", "V_DRONE_031", "IR_DRONE_001", "IR_DRONE_041", "V_BIRD_001", "V_AIRPLANE_031",
@@ -40,6 +41,24 @@ def test_a_fold_is_mined_and_taught_only_by_what_never_saw_it():
     assert hard_sets(objects, "1") == ["irobj0", "irobj2"]
     assert hard_sets(objects, "0") == ["irobj1", "irobj2"]
     assert hard_sets(objects, "all") == objects
+
+
+def test_more_scenes_are_mined_beside_the_first_without_touching_the_drone_free_bench():
+    def names(first, count):
+        args = SimpleNamespace(synthetic_only=True, synthetic=count, synthetic_first=first, tiny_light=0, shard=0,
+                               shards=1, scene_frames=150)
+        return sorted(name for name, _ in jobs(args))
+
+    assert names(0, 2) == ["SYN_DRONE_5000", "SYN_DRONE_5001", "SYN_EMPTY_6000", "SYN_EMPTY_6001"]
+    assert names(200, 2) == ["SYN_DRONE_5200", "SYN_DRONE_5201", "SYN_EMPTY_6200", "SYN_EMPTY_6201"]
+    check_synthetic_range(0, 96)
+    check_synthetic_range(200, 96)
+    check_synthetic_range(108, 10)
+    for first, count in ((0, 101), (96, 96), (107, 1), (-1, 5), (0, -3)):
+        with pytest.raises(SystemExit) as e:
+            check_synthetic_range(first, count)
+        assert "--synthetic-first %d --synthetic %d" % (first, count) in str(e.value)
+        assert "\n" not in str(e.value)
 
 
 def test_the_verifier_rule_may_cost_no_drone_group_more_than_the_limit():

@@ -1,8 +1,8 @@
 """Mine the locks GLAD follows, frame by frame, for the lock verifier (payload/detect/verify.py).
 
 Runs GLAD with the default config (the shipped models, or with --fold-models DIR each clip's fold's
-networks from DIR/fold{k}/, so that a fold is mined by networks that never saw it, and the synthetic
-scenes by DIR/all/, the networks that would ship) over Halmstad clips and synthetic scenes, and keeps, for every frame in which GLAD follows a lock (reported or
+networks from DIR/fold{k}/, so that a fold is mined by networks that never saw it; a synthetic scene
+by its seed's fold, ``fold_of``) over Halmstad clips and synthetic scenes, and keeps, for every frame in which GLAD follows a lock (reported or
 not), the verifier's feature row, the lock's number within the clip, whether LockCheck has
 confirmed it, the box that frame would report, and the drone's labelled box nearest to it. The
 rows are written per clip to OUT/<clip>.npz, so an interrupted run resumes where it stopped and
@@ -10,9 +10,10 @@ several shards can run side by side:
 
   python training/mine_tracks.py --out training/cache/tracks --shard 0 --shards 2
   python training/mine_tracks.py --out training/cache/tracks --synthetic 24 --shard 0 --shards 1
+  python training/mine_tracks.py --out training/cache/tracks --synthetic 96 --synthetic-first 200 --synthetic-only
 
-Synthetic scenes: seeds 5000.. with a drone and ground movers (cars) under ego-motion, and seeds
-6000.. without the drone (``render_target=False``, more cars): every lock there is false. With
+Synthetic scenes: seeds 5000.. (``--synthetic-first`` on) with a drone and ground movers (cars) under
+ego-motion, and seeds 6000.. without the drone (``render_target=False``, more cars): every lock there is false. With
 ``--tiny-light N``, seeds 7000.. are issue 16's tiny white drone (configs/tiny-light-sky.yaml: 3-6 px,
 light airframe, clear sky, above the horizon), so the verifier learns what such a lock looks like.
 """
@@ -123,12 +124,29 @@ def synthetic_scene(seed: int, frames: int, with_drone: bool) -> Scene:
     return Scene(seed=seed, frames=frames, target_px=(4.0, 40.0), cars=3 if with_drone else 8, render_target=with_drone)
 
 
+#: bench/drone_free.py's scenes (its default --first-seed and --scenes): never mined, so that its
+#: false-target count stays a figure on scenes the verifier never saw
+DRONE_FREE_BENCH_SEEDS = range(6100, 6108)
+
+
+def check_synthetic_range(first: int, count: int) -> None:
+    """Refuse (one line) a scene range that is negative or would mine bench/drone_free.py's scenes."""
+    if first < 0 or count < 0:
+        raise SystemExit("--synthetic-first %d --synthetic %d: expected both >= 0" % (first, count))
+    empty = range(SYNTH_EMPTY_SEED + first, SYNTH_EMPTY_SEED + first + count)
+    if count and max(empty.start, DRONE_FREE_BENCH_SEEDS.start) < min(empty.stop, DRONE_FREE_BENCH_SEEDS.stop):
+        raise SystemExit("--synthetic-first %d --synthetic %d: drone-free seeds %d-%d would include bench/drone_free.py's "
+                         "%d-%d, which must stay unseen; expected a range off them (e.g. --synthetic-first 200)" % (
+                             first, count, empty.start, empty.stop - 1, DRONE_FREE_BENCH_SEEDS.start,
+                             DRONE_FREE_BENCH_SEEDS.stop - 1))
+
+
 def jobs(args):
     out = []
     if not args.synthetic_only:
         for clip in halmstad_clips(args.data):
             out.append((clip.name, lambda clip=clip: halmstad_frames(clip)))
-    for k in range(args.synthetic):
+    for k in range(args.synthetic_first, args.synthetic_first + args.synthetic):
         for seed, with_drone in ((SYNTH_DRONE_SEED + k, True), (SYNTH_EMPTY_SEED + k, False)):
             def frames(seed=seed, with_drone=with_drone):
                 return scene_frames(synthetic_scene(seed, args.scene_frames, with_drone))
@@ -152,12 +170,16 @@ def main():
     ap.add_argument("--shard", type=int, default=0)
     ap.add_argument("--shards", type=int, default=1)
     ap.add_argument("--synthetic", type=int, default=0, help="synthetic scene pairs (drone / empty)")
+    ap.add_argument("--synthetic-first", type=int, default=0,
+                    help="the first pair's seed offset: more scenes later without re-mining (keep off 6100-6107, "
+                         "bench/drone_free.py's scenes never mined)")
     ap.add_argument("--tiny-light", type=int, default=0, help="tiny white drone scenes (3-6 px, clear sky)")
     ap.add_argument("--synthetic-only", action="store_true")
     ap.add_argument("--scene-frames", type=int, default=150)
     ap.add_argument("--fold-models", default=None, metavar="DIR",
                     help="run each clip with the networks of its fold: DIR/fold{k}/glad_*.onnx")
     args = ap.parse_args()
+    check_synthetic_range(args.synthetic_first, args.synthetic)
     os.makedirs(args.out, exist_ok=True)
     import cv2
 
