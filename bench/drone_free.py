@@ -19,13 +19,14 @@ from payload.config import Config, load_config  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
 from payload.errors import ConfigError  # noqa: E402
 from payload.types import Frame  # noqa: E402
-from training.mine_tracks import synthetic_scene  # noqa: E402
+from training.mine_tracks import DRONE_FREE_BENCH_SEEDS, synthetic_scene  # noqa: E402
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--first-seed", type=int, default=6100, help="the first scene's seed (mining uses 6000-6095 and 6200-6295)")
-    ap.add_argument("--scenes", type=int, default=8, help="scenes: seeds FIRST .. FIRST + SCENES - 1")
+    ap.add_argument("--first-seed", type=int, default=DRONE_FREE_BENCH_SEEDS.start,
+                    help="the first scene's seed (mining uses 6000-6095 and 6200-6295)")
+    ap.add_argument("--scenes", type=int, default=len(DRONE_FREE_BENCH_SEEDS), help="scenes: seeds FIRST .. FIRST + SCENES - 1")
     ap.add_argument("--frames", type=int, default=150, help="frames per scene")
     ap.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
     args = ap.parse_args()

@@ -124,7 +124,7 @@ def synthetic_scene(seed: int, frames: int, with_drone: bool) -> Scene:
     return Scene(seed=seed, frames=frames, target_px=(4.0, 40.0), cars=3 if with_drone else 8, render_target=with_drone)
 
 
-#: bench/drone_free.py's scenes (its default --first-seed and --scenes): never mined, so that its
+#: bench/drone_free.py's scenes (its default --first-seed and --scenes come from here): never mined, so that its
 #: false-target count stays a figure on scenes the verifier never saw
 DRONE_FREE_BENCH_SEEDS = range(6100, 6108)
 
@@ -134,7 +134,7 @@ def check_synthetic_range(first: int, count: int) -> None:
     if first < 0 or count < 0:
         raise SystemExit("--synthetic-first %d --synthetic %d: expected both >= 0" % (first, count))
     empty = range(SYNTH_EMPTY_SEED + first, SYNTH_EMPTY_SEED + first + count)
-    if count and max(empty.start, DRONE_FREE_BENCH_SEEDS.start) < min(empty.stop, DRONE_FREE_BENCH_SEEDS.stop):
+    if max(empty.start, DRONE_FREE_BENCH_SEEDS.start) < min(empty.stop, DRONE_FREE_BENCH_SEEDS.stop):
         raise SystemExit("--synthetic-first %d --synthetic %d: drone-free seeds %d-%d would include bench/drone_free.py's "
                          "%d-%d, which must stay unseen; expected a range off them (e.g. --synthetic-first 200)" % (
                              first, count, empty.start, empty.stop - 1, DRONE_FREE_BENCH_SEEDS.start,
