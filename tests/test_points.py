@@ -340,32 +340,24 @@ def test_spot_centre_at_the_frames_edge():
     assert centre == pytest.approx((318.0, 1.5), abs=0.05)
 
 
-def test_glad_reports_a_small_lock_on_its_spot_and_keeps_its_own_box(tmp_path):
-    import dataclasses
-
+def test_glad_measures_a_small_local_hit_on_its_spot(tmp_path):
+    """The local stage's hit, a network box 2 px off a 4 px drone, is measured on the drone's
+    centre (what the region follows, the lock verifier measures and the report says); a hit with no
+    isolated spot in it, or larger than a spot, stays as it is."""
     import cv2
     from test_pipeline import _spot_glad
 
     from payload.detect.ego_motion import GreyLevels
+    from payload.types import LAD, Detections
 
-    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
-                                   "detector.global.scan.tiles_per_frame": 2,
-                                   "detector.local.appearance.confidence": 0.5,
-                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    frame = None
-    for i in range(12):
-        frame = _grey_spot_frame(i)
-        if len(glad.process(frame).detections):
-            break
-    track = glad.tracks[0]
-    grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
-    off = track.target.xyxy + np.float32([2, -2, 2, -2])  # the network's box, 2 px off the drone
-    track.target = dataclasses.replace(track.target, xyxy=off)
-    track.detections = dataclasses.replace(track.detections, xyxy=off[None])
-    target, dets = glad._on_spot(track, grey)
-    assert target.center == pytest.approx((1002.0, 602.0), abs=0.05)  # the 4 px spot at 1000-1003, 600-603
-    assert dets.xyxy[0].tolist() == target.xyxy.tolist()
-    assert np.array_equal(track.target.xyxy, off)  # the track follows with its own box
-    coasting = dataclasses.replace(track.target, measured=False)
-    track.target = coasting
-    assert glad._on_spot(track, grey)[0] is coasting  # a prediction is not moved
+    glad = _spot_glad(tmp_path)
+    grey = GreyLevels.of(cv2.cvtColor(_grey_spot_frame(0).image, cv2.COLOR_BGR2GRAY))
+    off = Detections(np.float32([[1002, 598, 1006, 602]]), np.float32([0.7]), np.array([LAD], "<U3"))
+    on = glad._on_spot(off, grey)
+    assert on.centers[0].tolist() == pytest.approx([1002.0, 602.0], abs=0.05)  # the spot at 1000-1003, 600-603
+    assert on.xywh[0, 2:].tolist() == [4.0, 4.0] and on.score.tolist() == off.score.tolist()
+    assert on.module.tolist() == [LAD]
+    sky = Detections(np.float32([[400, 300, 404, 304]]), np.float32([0.7]), np.array([LAD], "<U3"))
+    assert glad._on_spot(sky, grey) is sky  # nothing stands out there
+    large = Detections(np.float32([[990, 590, 1014, 614]]), np.float32([0.7]), np.array([LAD], "<U3"))
+    assert glad._on_spot(large, grey) is large  # a 24 px box is no spot's
