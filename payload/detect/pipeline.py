@@ -308,8 +308,7 @@ class Glad:
         if centre is None:
             return hit
         c = hit.centers[0]
-        dx, dy = centre[0] - c[0], centre[1] - c[1]
-        return Detections(hit.xyxy + np.float32([dx, dy, dx, dy]), hit.score, hit.module)
+        return hit.shifted(centre[0] - c[0], centre[1] - c[1])
 
     def _search_due(self) -> bool:
         """Whether the global stage runs this frame: always while no target is followed locally;
