@@ -254,6 +254,40 @@ def test_a_hit_elsewhere_in_the_region_does_not_stop_the_spots_near_the_predicti
         assert np.allclose(r.target.xyxy, [999, 599, 1005, 605], atol=3) and len(r.detections)
 
 
+def test_a_hit_beside_a_small_target_inside_the_gate_does_not_stop_the_spots_at_the_prediction(tmp_path):
+    # a bird 25-50 px beside a followed 3-6 px drone, inside the jump gate but not where the drone
+    # should be (seeds 304 and 309 of the tiny white drones): the spots still look for the drone
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
+                                   "detector.global.scan.tiles_per_frame": 2,
+                                   "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see the spot
+                                   "detector.global.appearance.confidence": 0.6,
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+    i = 0
+    while not len(glad.process(_grey_spot_frame(i)).detections):
+        i += 1
+        assert i < 20
+    frame = _grey_spot_frame(i + 1)
+    frame.image[598:606, 1028:1036] = 250  # a bird the network sees, 30 px from the spot (gate 50)
+    r = glad.process(frame)
+    assert r.mode == "local" and "points" in r.timings_ms
+    lad = r.candidates[r.candidates.module == "LAD"]
+    assert any(b[0] >= 1025 for b in lad.xyxy)  # LAD saw the bird ...
+    assert any(np.allclose(b, [999, 599, 1005, 605], atol=1) for b in lad.xyxy)  # ... and the spots the drone
+
+
+def test_a_hit_is_where_a_target_should_be_within_the_gate_or_for_a_small_one_within_a_spot(tmp_path):
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path)
+    track = glad._new_track()
+    for size, distances, expected in [(4.0, [30.0], False), (4.0, [30.0, 9.0], True), (4.0, [], False),
+                                      (24.0, [30.0], True), (24.0, [], False)]:
+        track.region.size_wh = (size, size)
+        assert glad._where_expected(track, np.float32(distances)) is expected
+
+
 @pytest.mark.parametrize("value, expected", [
     ("sometimes", "detector.global.scan.points: 'sometimes' is not true or false"),
     ("2", "detector.global.scan.points: 2 is not true or false"),

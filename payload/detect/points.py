@@ -56,6 +56,11 @@ class PointDetector:
         self.min_contrast, self.min_isolation = float(min_contrast), float(min_isolation)
         self.max_points = int(max_points)
 
+    @property
+    def kernel_px(self) -> int:
+        """The largest spot's side (the top-hat kernel's)."""
+        return int(self.kernel.shape[0])
+
     def detect(self, image_bgr: np.ndarray, offset_xy=(0.0, 0.0), module: str = GAD,
                min_isolation: Optional[float] = None) -> Detections:
         """``module``: whose hits they are (GAD on the scan's tiles, LAD in a search region);
@@ -114,7 +119,7 @@ class PointDetector:
         at least ``min_contrast`` and ``min_isolation`` x (the largest response within a ring's reach
         outside the box + 4). A 3-6 px drone's network box is placed on a 4-8 px grid; its pixels say
         where it is to a fraction of one."""
-        kernel_px = self.kernel.shape[0]
+        kernel_px = self.kernel_px
         x1, y1, x2, y2 = (float(v) for v in xyxy)
         if not np.isfinite([x1, y1, x2, y2]).all() or max(x2 - x1, y2 - y1) > kernel_px or x2 <= x1 or y2 <= y1:
             return None
