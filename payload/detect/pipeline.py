@@ -10,7 +10,8 @@ Per frame, chosen by each target's switcher:
   19's time budget);
 - local: appearance (LAD) inside the target's search region at native resolution; only if it
   finds nothing, motion (LMD) inside the region, checked by the classifier; on frames the scan
-  searches, then isolated spots in the region, checked by the classifier.
+  searches, then isolated spots in the region, checked by the classifier (for a target no larger
+  than a spot also when every hit lies farther than a spot from the prediction: a bird beside it).
 A hit moves/keeps the switcher on local and updates the search region; a local miss grows
 the region around its prediction until the switcher gives up. Local hits farther than
 max_jump_px from the prediction are ignored, unless one would have started a target globally
