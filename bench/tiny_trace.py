@@ -26,7 +26,6 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from tiny_contrast import contrast  # noqa: E402
 
-from payload.cli import _seeds  # noqa: E402
 from payload.config import Config, load_config  # noqa: E402
 from payload.errors import ConfigError  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
@@ -82,9 +81,21 @@ def shares(counts) -> str:
     return " ".join("%s %.3f" % (k, counts[k] / n) for k in KINDS)
 
 
+def seeds(text: str):
+    """A seed (``7``) or an inclusive range (``100-109``), as ``glad-payload eval --synthetic`` takes them."""
+    first, _, last = text.partition("-")
+    try:
+        found = list(range(int(first), int(last or first) + 1))
+    except ValueError:
+        found = []
+    if not found or found[0] < 0:
+        raise argparse.ArgumentTypeError("%r: expected a seed (7) or a range of seeds (100-109)" % text)
+    return found
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("seeds", nargs="+", type=_seeds, metavar="SEED", help="seeds or ranges, e.g. 300-309")
+    ap.add_argument("seeds", nargs="+", type=seeds, metavar="SEED", help="seeds or ranges, e.g. 300-309")
     ap.add_argument("--frames", type=int, default=150, help="frames per scene")
     ap.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
     args = ap.parse_args()
