@@ -29,7 +29,9 @@ from tiny_contrast import contrast  # noqa: E402
 from payload.config import Config, load_config  # noqa: E402
 from payload.errors import ConfigError  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
+from payload.eval.metrics import centre_match_frame  # noqa: E402
 from payload.offline import iter_glad, synthetic_clip  # noqa: E402
+from payload.synth import seed_range  # noqa: E402
 
 KINDS = ("reported", "wrong", "coasting", "near", "far", "searching")
 LETTER = {"reported": "T", "wrong": "W", "coasting": "o", "near": "n", "far": "f", "searching": "s"}
@@ -45,7 +47,8 @@ def kind_of(result, box) -> str:
     """What the frame's result did with the drone labelled at ``box`` (xyxy)."""
     centre = ((box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0)
     if len(result.detections):
-        return "reported" if _inside(result.detections.centers[0], box) else "wrong"
+        # eval's own centre-in-box match: "reported" is what it counts as centre recall
+        return "reported" if centre_match_frame(result.detections[:1], box)[0] >= 0 else "wrong"
     if result.target is not None:
         return "coasting"
     if result.following:
@@ -81,21 +84,9 @@ def shares(counts) -> str:
     return " ".join("%s %.3f" % (k, counts[k] / n) for k in KINDS)
 
 
-def seeds(text: str):
-    """A seed (``7``) or an inclusive range (``100-109``), as ``glad-payload eval --synthetic`` takes them."""
-    first, _, last = text.partition("-")
-    try:
-        found = list(range(int(first), int(last or first) + 1))
-    except ValueError:
-        found = []
-    if not found or found[0] < 0:
-        raise argparse.ArgumentTypeError("%r: expected a seed (7) or a range of seeds (100-109)" % text)
-    return found
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("seeds", nargs="+", type=seeds, metavar="SEED", help="seeds or ranges, e.g. 300-309")
+    ap.add_argument("seeds", nargs="+", type=seed_range, metavar="SEED", help="seeds or ranges, e.g. 300-309")
     ap.add_argument("--frames", type=int, default=150, help="frames per scene")
     ap.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
     args = ap.parse_args()

@@ -8,22 +8,11 @@ from typing import List, Optional
 
 from payload import __version__
 from payload.errors import ConfigError, PayloadError
-
-
-def _seeds(text: str) -> List[int]:
-    """A seed (``7``) or an inclusive range (``100-109``)."""
-    try:
-        first, _, last = text.partition("-")
-        seeds = list(range(int(first), int(last or first) + 1))
-    except ValueError:
-        seeds = []
-    if not seeds or seeds[0] < 0:
-        raise argparse.ArgumentTypeError("%r: expected a seed (7) or a range of seeds (100-109)" % text)
-    return seeds
+from payload.synth import seed_range
 
 
 def _add_synthetic_args(p: argparse.ArgumentParser, what: str) -> None:
-    p.add_argument("--synthetic", nargs="+", type=_seeds, default=[], metavar="SEED",
+    p.add_argument("--synthetic", nargs="+", type=seed_range, default=[], metavar="SEED",
                    help="%s rendered synthetic clips (capture.synthetic scene) with these seeds, e.g. 100-109" % what)
     p.add_argument("--target-px", nargs=2, type=float, default=None, metavar=("MIN", "MAX"),
                    help="--synthetic: drone size range in px (default capture.synthetic.target_px)")
@@ -150,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
     from payload.eval.geo_error import add_arguments as add_geo_error_arguments
 
     add_geo_error_arguments(p)
-    p.add_argument("--synthetic", nargs="+", type=_seeds, default=[], metavar="SEED",
+    p.add_argument("--synthetic", nargs="+", type=seed_range, default=[], metavar="SEED",
                    help="scene seeds, e.g. 100-109 (default 100-109)")
     p.set_defaults(func=_geo_error)
 

@@ -184,13 +184,15 @@ def test_no_spots_where_the_global_input_keeps_most_of_the_resolution(tmp_path):
     assert not any(len(r.candidates) for r in results)  # 640x512 is not scanned: Halmstad's clips unchanged
 
 
-def _locked_on_the_spot(tmp_path):
-    """GLAD (the spot cue, no classifier bar) and the first frame index after it reported the spot."""
+def _locked_on_the_spot(tmp_path, **settings):
+    """GLAD (the spot cue, no classifier bar; ``settings`` on top) and the first frame index after it
+    reported the spot."""
     from test_pipeline import _spot_glad
 
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
                                    "detector.global.scan.tiles_per_frame": 2, "detector.local.appearance.confidence": 0.5,
-                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0,
+                                   **settings})
     i = 0
     while not len(glad.process(_grey_spot_frame(i)).detections):
         i += 1
@@ -231,20 +233,11 @@ def test_a_followed_spot_among_noise_nearly_as_strong_is_kept_where_the_search_w
 def test_a_hit_elsewhere_in_the_region_does_not_stop_the_spots_near_the_prediction(tmp_path):
     # a followed small drone that LAD does not see, and in its region, farther than the jump gate,
     # something LAD does see (a bird): the spots still look for the drone (seed 307 of the tiny white
-    # drones lost every other frame of its lock to a bird 120 px away)
-    from test_pipeline import _spot_glad
-
-    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
-                                   "detector.global.scan.tiles_per_frame": 2,
-                                   "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see the spot
-                                   "detector.global.appearance.confidence": 0.6,  # nor takes the bird's 0.55 as a new target
-                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    i = 0
-    while not len(glad.process(_grey_spot_frame(i)).detections):
-        i += 1
-        assert i < 20
+    # drones lost every other frame of its lock to a bird 120 px away); LAD (T1) does not see the spot,
+    # nor does the global stage take the bird's 0.55 as a new target
+    glad, i = _locked_on_the_spot(tmp_path, **{"detector.global.appearance.confidence": 0.6})
     results = []
-    for j in range(i + 1, i + 6):
+    for j in range(i, i + 5):
         frame = _grey_spot_frame(j)
         frame.image[560:564, 1080:1084] = 140  # 81 px from the spot (gate 50), inside the 300 px region
         results.append(glad.process(frame))
@@ -257,18 +250,8 @@ def test_a_hit_elsewhere_in_the_region_does_not_stop_the_spots_near_the_predicti
 def test_a_hit_beside_a_small_target_inside_the_gate_does_not_stop_the_spots_at_the_prediction(tmp_path):
     # a bird 25-50 px beside a followed 3-6 px drone, inside the jump gate but not where the drone
     # should be (seeds 304 and 309 of the tiny white drones): the spots still look for the drone
-    from test_pipeline import _spot_glad
-
-    glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
-                                   "detector.global.scan.tiles_per_frame": 2,
-                                   "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see the spot
-                                   "detector.global.appearance.confidence": 0.6,
-                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    i = 0
-    while not len(glad.process(_grey_spot_frame(i)).detections):
-        i += 1
-        assert i < 20
-    frame = _grey_spot_frame(i + 1)
+    glad, i = _locked_on_the_spot(tmp_path, **{"detector.global.appearance.confidence": 0.6})
+    frame = _grey_spot_frame(i)
     frame.image[598:606, 1028:1036] = 250  # a bird the network sees, 30 px from the spot (gate 50)
     r = glad.process(frame)
     assert r.mode == "local" and "points" in r.timings_ms

@@ -21,3 +21,18 @@ Modules: camera (ego-motion, projection), backdrop (rendered or video backdrop),
 target sprite), clutter (near objects, parallax), distractors (birds, cars), scene (assembly),
 export (mp4 + labels).
 """
+
+
+def seed_range(text: str):
+    """An argparse ``type`` for scene seeds: a seed (``7``) or an inclusive range (``100-109``) as a
+    list of ints; anything else an ArgumentTypeError saying what is expected."""
+    import argparse
+
+    try:
+        first, _, last = text.partition("-")
+        seeds = list(range(int(first), int(last or first) + 1))
+    except ValueError:
+        seeds = []
+    if not seeds or seeds[0] < 0:
+        raise argparse.ArgumentTypeError("%r: expected a seed (7) or a range of seeds (100-109)" % text)
+    return seeds
