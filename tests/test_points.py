@@ -324,6 +324,21 @@ def test_a_small_box_off_its_spot_is_moved_onto_the_spot():
     assert spot_centre(dark, np.float32([199, 49, 203, 53])) == pytest.approx((202.0, 52.0), abs=0.05)
 
 
+def test_a_spot_reaching_beyond_the_box_is_centred_whole_not_taken_for_its_own_surroundings():
+    """Seed 301 of configs/tiny-light-sky.yaml, frame 40: a 5 x 2 px drone, the network's box 3 px
+    below it; the drone's upper row lay outside the box (and its 2 px margin). Counted as the
+    surroundings, it outshone the spot's peak and the hit stayed off the drone."""
+    spot_centre = PointDetector().centre
+    grey = _sky()[..., 0]
+    grey[100:102, 60:65] = 215  # the drone: rows 100-101, columns 60-64, centre (62.5, 101.0)
+    grey[100, 60:65] = 205  # its upper row a little fainter, as a blurred edge
+    assert spot_centre(grey, np.float32([60, 103, 64, 105])) == pytest.approx((62.5, 101.0), abs=0.3)
+    # a spot larger than a spot's kernel reaching into the box stays the box's surroundings
+    grey[100:102, 60:65] = grey[104, 60]
+    grey[90:102, 50:75] = 215
+    assert spot_centre(grey, np.float32([60, 103, 64, 105])) is None
+
+
 @pytest.mark.parametrize("box", [
     [0, 0, 30, 30],  # larger than a spot: a network's box stays as it is
     [np.nan, 0, 4, 4], [0, 0, np.inf, 4],  # broken numbers
@@ -368,13 +383,52 @@ def test_glad_measures_a_small_local_hit_on_its_spot(tmp_path):
     from payload.types import LAD, Detections
 
     glad = _spot_glad(tmp_path)
-    grey = GreyLevels.of(cv2.cvtColor(_grey_spot_frame(0).image, cv2.COLOR_BGR2GRAY))
+    image = _grey_spot_frame(0).image
+    grey = GreyLevels.of(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
     off = Detections(np.float32([[1002, 598, 1006, 602]]), np.float32([0.7]), np.array([LAD], "<U3"))
-    on = glad._on_spot(off, grey)
+    on = glad._on_spot(off, grey, image)
     assert on.centers[0].tolist() == pytest.approx([1002.0, 602.0], abs=0.05)  # the spot at 1000-1003, 600-603
     assert on.xywh[0, 2:].tolist() == [4.0, 4.0] and on.score.tolist() == off.score.tolist()
     assert on.module.tolist() == [LAD]
     sky = Detections(np.float32([[400, 300, 404, 304]]), np.float32([0.7]), np.array([LAD], "<U3"))
-    assert glad._on_spot(sky, grey) is sky  # nothing stands out there
+    assert glad._on_spot(sky, grey, image) is sky  # nothing stands out there
     large = Detections(np.float32([[990, 590, 1014, 614]]), np.float32([0.7]), np.array([LAD], "<U3"))
-    assert glad._on_spot(large, grey) is large  # a 24 px box is no spot's
+    assert glad._on_spot(large, grey, image) is large  # a 24 px box is no spot's
+
+
+def test_a_small_local_hit_is_measured_on_a_spot_only_its_colours_show(tmp_path):
+    """A white drone on a pale sky can be the sky's grey yet stand out in its blue (seed 304 of
+    configs/tiny-light-sky.yaml: the box 3 px off the drone in 7 reported frames): where the grey
+    level has no spot, the colour channels are looked at; where it has one, they are not."""
+    import cv2
+    from test_pipeline import _spot_glad
+
+    from payload.detect.ego_motion import GreyLevels
+    from payload.types import LAD, Detections
+
+    glad = _spot_glad(tmp_path)
+    image = _grey_spot_frame(0, colour=True).image  # the spot at 1000-1003, 600-603: blue and red only
+    grey = GreyLevels.of(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+    off = Detections(np.float32([[1002, 598, 1006, 602]]), np.float32([0.7]), np.array([LAD], "<U3"))
+    assert glad.points.centre(grey.full, off.xyxy[0]) is None  # the grey level does not show it
+    on = glad._on_spot(off, grey, image)
+    assert on.centers[0].tolist() == pytest.approx([1002.0, 602.0], abs=0.05)
+
+
+def test_a_spot_the_global_stage_finds_is_scored_by_the_classifier(tmp_path):
+    """A spot has no confidence of its own (its score maps its isolation): as a motion hit, the one
+    the global stage finds takes the classifier's drone probability, what decides whether it may
+    start a target beside or in place of another (T0; seed 309 of the tiny white drones: the drone's
+    spot at p 0.98-1.00, its isolation score 0.33-0.49 under T0 0.5)."""
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path, **{"detector.classifier.lock_hits": 0, "detector.global.scan.tiles_per_frame": 1,
+                                   "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it
+                                   "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
+    frames = [_grey_spot_frame(i, xy=(1000, 200)) for i in range(3)]
+    results = [glad.process(f) for f in frames]  # GAD, the scan, then the spots' turn
+    hit = results[-1].detections
+    assert list(hit.module) == ["GAD"] and "points" in results[-1].timings_ms
+    p = float(glad.models.classifier.probabilities(frames[-1].image, hit)[0])
+    isolation_score = float(PointDetector().detect(frames[-1].image).score[0])
+    assert hit.score[0] == pytest.approx(p, abs=1e-6) and abs(p - isolation_score) > 0.05

@@ -343,14 +343,15 @@ def test_a_lock_never_reported_does_not_blind_the_search_with_one_target(tmp_pat
     results = [glad.process(_spots(i, [dim, B])) for i in range(1, 8)]
     assert not any("GAD" in r.timings_ms for r in results) and not any(r.targets for r in results)
     assert [t.id for t in glad.tracks] == [1] and glad.tracks[0].lock.confirmed
-    # ... until it has been refused over a whole window of the verifier's verdicts (every one under
+    # ... until it has been refused (REFUSED_AFTER of the verifier's verdicts in a row under
     # REFUSED_BELOW): then the global stage searches again and the bright spot takes its place
     glad = _spot_glad(tmp_path, **{**stale, "detector.classifier.confirm_threshold": 0.05,
                                    "detector.verifier.enabled": True, "detector.verifier.threshold": 0.5,
                                    "detector.verifier.release_threshold": 0.5, "detector.verifier.min_frames": 1,
                                    "detector.verifier.model": str(tmp_path / "v.onnx")})
     glad.process(_spots(0, [dim]))
-    window = glad.tracks[0].verifier.window
+    from payload.detect.verify import REFUSED_AFTER as window
+
     results = [glad.process(_spots(i, [dim, B])) for i in range(1, window + 4)]
     ran = ["GAD" in r.timings_ms for r in results]
     assert not any(ran[:window - 1]) and any(ran[window - 1:])

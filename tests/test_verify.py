@@ -93,15 +93,18 @@ def test_lock_is_judged_after_min_frames_and_released_below_the_release_threshol
     assert not v.verified and len(v.rows) == 0
 
 
-def test_a_lock_is_refused_only_after_a_whole_window_of_verdicts_under_the_bar(tmp_path):
-    from payload.detect.verify import REFUSED_BELOW
+def test_a_lock_is_refused_only_after_refused_after_verdicts_in_a_row_under_the_bar(tmp_path):
+    from payload.detect.verify import REFUSED_AFTER, REFUSED_BELOW
 
     v = _verifier(tmp_path, min_frames=2, threshold=0.9, release_threshold=0.7)
     low, held = REFUSED_BELOW - 0.2, REFUSED_BELOW + 0.1
     v.add(_row(low))  # not judged yet (min_frames 2): no verdict counts
-    for _ in range(v.window - 1):
+    for _ in range(REFUSED_AFTER - 2):
         v.add(_row(low))
-    assert not v.refused  # one verdict short of a window
+    v.add(_row(held))  # one verdict at the bar or more: the count starts again
+    for _ in range(REFUSED_AFTER - 1):
+        v.add(_row(low))
+    assert not v.refused  # one verdict short
     v.add(_row(low))
     assert v.refused and not v.verified
     v.add(_row(held))  # one verdict at the bar or more: judged afresh

@@ -299,13 +299,18 @@ class Glad:
             timings, following=primary is None and bool(self.tracks), lock_p=lock_p, degraded=self._degraded,
             targets=targets)
 
-    def _on_spot(self, hit: Detections, grey: GreyLevels) -> Detections:
+    def _on_spot(self, hit: Detections, grey: GreyLevels, image: np.ndarray) -> Detections:
         """A small local hit moved onto the centre of the isolated spot in it
         (payload.detect.points.PointDetector.centre), else as it is. A 3-6 px drone's network box sits
         a pixel or three off it, on a 4-8 px grid: where the track is measured there, the lock
         verifier's row measures sky beside the drone and its verdict falls for that frame (seed
-        301 of configs/tiny-light-sky.yaml: 0.99 -> 0.01 with the box 3 px off, docs/results.md)."""
+        301 of configs/tiny-light-sky.yaml: 0.99 -> 0.01 with the box 3 px off, docs/results.md).
+        The spot is looked for in the grey level, and only where it has none in the colour channels:
+        a white drone on a pale sky can be the sky's grey yet stand out in its blue (seed 304); where
+        the grey level had a spot, the colour channels' own noise had moved boxes that were right."""
         centre = self.points.centre(grey.full, hit.xyxy[0])
+        if centre is None and image.ndim == 3:
+            centre = self.points.centre(image, hit.xyxy[0])
         if centre is None:
             return hit
         c = hit.centers[0]
@@ -400,8 +405,12 @@ class Glad:
             spots = self._spots(frame.image)
             _add(timings, POINTS, _ms(t))
             candidates.append(spots)
+            # a spot has no confidence of its own (its score maps its isolation): as a motion hit, it
+            # takes the classifier's probability, so that one the classifier is sure of may start a
+            # target in place of a refused lock as a network's hit over T0 may (seed 309 of the tiny
+            # white drones: the drone's spot at p 0.98-1.00 but isolation scores 0.33-0.49)
             found = keep(self._classify(frame.image, spots, timings, threshold=max(
-                self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold)))
+                self.cfg.classifier.threshold, self.cfg.classifier.confirm_threshold), rescore=True))
         t = time.perf_counter()
         started = self._start(frame, found.sorted_by_score(), timings)
         _add(timings, "switcher", _ms(t))
@@ -540,7 +549,7 @@ class Glad:
             _add(timings, "switcher", _ms(t))
             return
         if len(best):
-            best = self._on_spot(best, grey)
+            best = self._on_spot(best, grey, frame.image)
             track.observed = best
             track.region.hit(tuple(best.centers[0]), tuple(best.xywh[0, 2:]), float(best.score[0]))
             best = best.resized(track.region.size_wh).rescored(track.region.score)
@@ -650,16 +659,18 @@ class Glad:
         return self._classify(image, motion.detections, timings)
 
     def _classify(self, image: np.ndarray, dets: Detections, timings: Dict[str, float],
-                  threshold: Optional[float] = None) -> Detections:
+                  threshold: Optional[float] = None, rescore: bool = False) -> Detections:
         """The hits the classifier confirms (at ``threshold``, default its own), for the modules it
         checks (cfg.classifier.modules).
 
         Motion hits take the classifier's probability as their score (the motion detector has no
-        score of its own); appearance hits keep the detector's confidence.
+        score of its own), and so do others with ``rescore``; appearance hits keep the detector's
+        confidence.
         """
         if not len(dets) or dets.module[0] not in self.cfg.classifier.modules:
             return dets
-        return self._confirm(image, dets, rescore=dets.module[0] in (GMD, LMD), timings=timings, threshold=threshold)
+        return self._confirm(image, dets, rescore=rescore or dets.module[0] in (GMD, LMD), timings=timings,
+                             threshold=threshold)
 
     def _confirm(self, image: np.ndarray, dets: Detections, rescore: bool, timings: Dict[str, float],
                  threshold: Optional[float] = None) -> Detections:

@@ -168,10 +168,13 @@ def _surroundings(grey: np.ndarray, box: np.ndarray) -> Tuple[float, float, floa
     return contrast, float(np.log1p(std_in)), float(np.log1p(std_ring))
 
 
-#: A lock whose drone probability stayed below this over a whole window of the verifier's verdicts
-#: is refused (``LockVerifier.refused``): the tiny white drones' birds and clutter held 0.00-0.39 for
-#: 150 frames, their drone locks reached 0.8-0.99 within every window (docs/results.md).
+#: A lock whose drone probability stayed below REFUSED_BELOW over REFUSED_AFTER of the verifier's
+#: verdicts in a row is refused (``LockVerifier.refused``): the tiny white drones' birds and clutter
+#: held 0.00-0.39 for 150 frames, their drone locks reached 0.8-0.99 within every window. Each verdict
+#: already weighs the model's whole window of rows (32 frames); a whole window of verdicts more (as
+#: before) kept the search blind for 35 frames while seed 309's drone stood in view (docs/results.md).
 REFUSED_BELOW = 0.5
+REFUSED_AFTER = 8
 
 
 class LockVerifier:
@@ -235,9 +238,9 @@ class LockVerifier:
 
     @property
     def refused(self) -> bool:
-        """Whether the network has judged the lock not a drone over a whole window of verdicts in a row
+        """Whether the network has judged the lock not a drone over REFUSED_AFTER verdicts in a row
         (never REFUSED_BELOW or more), not merely held it back."""
-        return self.judging and self.below >= self.window
+        return self.judging and self.below >= REFUSED_AFTER
 
     def window_array(self) -> np.ndarray:
         """The last ``window`` rows [T, F], oldest first, zero rows in front while fewer."""
