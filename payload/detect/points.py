@@ -116,9 +116,9 @@ class PointDetector:
         """The centre of the isolated spot in a small box (no larger than a spot), or None where there
         is none: the response-weighted centroid of the spot's pixels at half its peak or more, on
         detect's top-hat / black-hat response (the peak's polarity; of a colour image, the channel
-        where the spot is most isolated), the peak (the box's, grown by
-        ``margin_px``) at least ``min_contrast`` and ``min_isolation`` x (the largest response within
-        a ring's reach outside the spot + 4). The spot: the box, and the 8-connected pixels at half
+        where the spot is most isolated), the peak (the box's, grown by ``margin_px``) at least
+        ``min_contrast`` and ``min_isolation`` x (the largest response within a ring's reach outside
+        the spot + 4). The spot: the box, and the 8-connected pixels at half
         the peak or more around the peak with a pixel's rim, while no larger than a spot. A 3-6 px
         drone's network box is placed on a 4-8 px grid; its pixels say where it is to a fraction of
         one. With the box 3 px off, part of the drone lay outside it; counted as the surroundings, it
@@ -152,19 +152,19 @@ class PointDetector:
         peak = float(response[inner].max())
         if peak < self.min_contrast:
             return None
-        spot = np.zeros(response.shape, np.uint8)
-        spot[inner] = 1
+        spot = np.zeros(response.shape, bool)
+        spot[inner] = True
         # the spot's own pixels beyond the box belong to it, not to its surroundings
-        half = (response >= 0.5 * peak).astype(np.uint8)
-        _, labels, stats, _ = cv2.connectedComponentsWithStats(half, connectivity=8)
-        py, px = np.unravel_index(int(np.argmax(np.where(spot > 0, response, -1.0))), response.shape)
+        half = response >= 0.5 * peak
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(half.astype(np.uint8), connectivity=8)
+        py, px = np.unravel_index(int(np.argmax(np.where(spot, response, -1.0))), response.shape)
         sx, sy, sw, sh = stats[labels[py, px], :4]
         if max(sw, sh) <= kernel_px:
-            spot[max(0, sy - 1):sy + sh + 1, max(0, sx - 1):sx + sw + 1] = 1
-        isolation = peak / (float(response[spot == 0].max(initial=0.0)) + 4.0)
+            spot[max(0, sy - 1):sy + sh + 1, max(0, sx - 1):sx + sw + 1] = True
+        isolation = peak / (float(response[~spot].max(initial=0.0)) + 4.0)
         if isolation < self.min_isolation:
             return None
-        weight = np.where((spot > 0) & (half > 0), response, 0.0)
+        weight = np.where(spot & half, response, 0.0)
         ys, xs = np.mgrid[wy1:wy2, wx1:wx2]
         total = float(weight.sum())
         # pixel (x, y) covers [x, x + 1): its centre is x + 0.5
