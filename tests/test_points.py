@@ -133,15 +133,16 @@ def test_the_scan_proposes_spots_and_the_local_stage_keeps_them(tmp_path, points
 
 
 @pytest.mark.parametrize("size_wh, xy, first", [
-    ((1280, 768), (1000, 200), 2), ((1280, 768), (0, 0), 2), ((1280, 768), (1276, 764), 5),  # two bands
-    ((1920, 1080), (1000, 200), 2), ((1920, 1080), (1916, 1076), 8),  # three bands, in turn from the top
-    ((1920, 1080), (960, 356), 2), ((1920, 1080), (960, 360), 5),  # either side of a cut (centre y 358, 362)
-    ((1920, 1080), (960, 716), 5), ((1920, 1080), (960, 720), 8),  # ... and of the next (718, 722)
+    ((1280, 768), (1000, 200), 1), ((1280, 768), (0, 0), 1), ((1280, 768), (1276, 764), 2),  # two bands
+    ((1920, 1080), (1000, 200), 1), ((1920, 1080), (1916, 1076), 4),  # three bands, in turn from the top
+    ((1920, 1080), (960, 356), 1), ((1920, 1080), (960, 360), 2),  # either side of a cut (centre y 358, 362)
+    ((1920, 1080), (960, 716), 2), ((1920, 1080), (960, 720), 4),  # ... and of the next (718, 722)
 ])
 def test_the_spot_look_covers_the_whole_frame_in_its_turns(tmp_path, size_wh, xy, first):
     # the spots are a global look of their own over the whole frame, a band of rows (at most
-    # SPOT_BAND_PX pixels: a 1080p frame in three) a turn: a spot anywhere, the frame's corners and the
-    # bands' cut included, is found in its band's first turn
+    # SPOT_BAND_PX pixels: a 1080p frame in three) a turn, and with nothing followed the scan's turn
+    # takes the next band after it: a spot anywhere, the frame's corners and the bands' cuts included,
+    # is found in its band's first turn
     from test_pipeline import _spot_glad
 
     glad = _spot_glad(tmp_path, **{"detector.classifier.modules": [], "detector.classifier.lock_hits": 0,
@@ -149,14 +150,53 @@ def test_the_spot_look_covers_the_whole_frame_in_its_turns(tmp_path, size_wh, xy
                                    "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it
                                    "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
     results = [glad.process(_grey_spot_frame(i, xy=xy, size_wh=size_wh)) for i in range(first + 1)]
-    # GAD, the scan and the spots take turns (global motion off): the spots' turns are frames 2, 5, ...
+    # GAD | the scan, band 0 | the spots, band 1 | GAD | the scan, band 2 (global motion off)
     assert [len(r.detections) for r in results] == [0] * first + [1]
-    assert [[m for m in ("GAD", "scan", "points") if m in r.timings_ms] for r in results[:3]] == [
-        ["GAD"], ["scan"], ["points"]]
     hit = results[-1].detections
     assert list(hit.module) == ["GAD"] and results[-1].mode == "global"
     # the spot and a pixel around it (reported on the spot's centroid: within a twentieth of a pixel)
     assert np.allclose(hit.xyxy[0], [xy[0] - 1, xy[1] - 1, xy[0] + 5, xy[1] + 5], atol=0.05)
+
+
+def _counting_spots(glad):
+    """``glad`` with its global spot search counted: a list that grows by one each band searched."""
+    calls, search = [], glad._spots
+
+    def counted(image):
+        calls.append(1)
+        return search(image)
+
+    glad._spots = counted
+    return calls
+
+
+def test_with_nothing_followed_the_scans_turn_searches_a_band_of_spots_too(tmp_path):
+    # GAD's turn (its network on the whole frame, the dearest look) stays alone; the scan's takes a
+    # band after its tiles, so that three bands are searched every three frames, not every nine
+    from test_pipeline import _spot_glad
+
+    glad = _spot_glad(tmp_path, **{"detector.global.scan.tiles_per_frame": 1})
+    calls = _counting_spots(glad)
+    looks = []
+    for i in range(6):
+        before = len(calls)
+        r = glad.process(_grey_spot_frame(i, xy=(0, 0), size_wh=(1920, 1080)))  # the spot too dim for GAD's
+        assert r.target is None                                                # bright-spot network
+        looks.append(([m for m in ("GAD", "scan") if m in r.timings_ms], len(calls) - before))
+    assert looks == [(["GAD"], 0), (["scan"], 1), ([], 1)] * 2
+
+
+def test_a_followed_target_gives_the_spots_their_own_turns_back(tmp_path):
+    # beside a followed target the local stage has this frame's time: the spots keep to their turn
+    glad, i = _locked_on_the_spot(tmp_path, **{"detector.targets.max": 2, "detector.targets.search_every": 1})
+    calls = _counting_spots(glad)
+    turns = []
+    for j in range(i, i + 9):
+        before = len(calls)
+        r = glad.process(_grey_spot_frame(j))
+        assert len(r.detections)  # followed and reported, the global stage looking for more every frame
+        turns.append(("GAD" in r.timings_ms, "scan" in r.timings_ms, len(calls) - before))
+    assert sorted(set(turns)) == [(False, False, 1), (False, True, 0), (True, False, 0)]
 
 
 def test_the_bands_find_what_the_whole_frame_gives(tmp_path):
@@ -425,8 +465,8 @@ def test_a_spot_the_global_stage_finds_is_scored_by_the_classifier(tmp_path):
     glad = _spot_glad(tmp_path, **{"detector.classifier.lock_hits": 0, "detector.global.scan.tiles_per_frame": 1,
                                    "detector.local.appearance.confidence": 0.5,  # LAD (T1) does not see it
                                    "detector.classifier.threshold": 0.0, "detector.classifier.confirm_threshold": 0.0})
-    frames = [_grey_spot_frame(i, xy=(1000, 200)) for i in range(3)]
-    results = [glad.process(f) for f in frames]  # GAD, the scan, then the spots' turn
+    frames = [_grey_spot_frame(i, xy=(1000, 200)) for i in range(2)]
+    results = [glad.process(f) for f in frames]  # GAD, then the scan and the spots' first band
     hit = results[-1].detections
     assert list(hit.module) == ["GAD"] and "points" in results[-1].timings_ms
     p = float(glad.models.classifier.probabilities(frames[-1].image, hit)[0])
