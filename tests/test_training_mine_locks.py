@@ -10,17 +10,17 @@ from training import mine_locks
 
 
 def test_collects_the_locked_drone_as_drone_patches():
-    scene = Scene(seed=11, width=1920, height=1080, frames=90, target_px=(6.0, 20.0))
+    scene = Scene(seed=11, width=1920, height=1080, frames=120, target_px=(6.0, 20.0))
     collector = mine_locks.Collector(every=2)
     glad = Glad(Config().detector)
     mine_locks.run_clip(glad, collector, "synthetic", ((sf.index, sf.image, sf.target_xyxy) for sf in scene))
-    assert collector.x, "GLAD locked on nothing in 90 frames of seed 11"
+    assert collector.x, "GLAD locked on nothing in 120 frames of seed 11"
     assert all(p.shape == (PATCH_PX, PATCH_PX, 3) and p.dtype == np.uint8 for p in collector.x)
-    # seed 11's drone (a clip of tests/test_glad_synthetic.py) is locked by frame 26 since the global
-    # looks take turns at 1080p (by frame 4 before) and reported from frame 31: drone patches, one
-    # every second frame at most
-    assert collector.counts.get(("synthetic", 1), 0) >= 20
-    assert sum(collector.counts.values()) <= 45
+    # seed 11's drone (a clip of tests/test_glad_synthetic.py) is reported from frame 12 or 53 (when GMD's
+    # turn meets it moving: the turns' phase moves with the platform's numerics and with clutter spots
+    # the classifier passes); then drone patches, one every second frame at most
+    assert collector.counts.get(("synthetic", 1), 0) >= 30
+    assert sum(collector.counts.values()) <= 60
 
 
 def test_every_box_on_a_clip_without_drones_is_clutter():
