@@ -561,16 +561,18 @@ def test_importing_the_link_leaves_the_environment_alone():
 
 def test_fake_autopilot_follows_the_synthetic_scene_camera(fakes, tmp_path):
     scene_mod = pytest.importorskip("payload.synth.scene", reason="payload.synth.scene not in this checkout")
-    port = free_port()
-    fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}", "--scene-seed", "3", "--scene-fps", "30")
     frames = iter(scene_mod.Scene(seed=3, width=160, height=96, fps=30.0, frames=0, clutter=0, birds=0, cars=0,
                                   noise=0.0))
-    # 30 s of the scene's attitude: enough however long the loaded machine takes to sync.
-    rpy = [next(frames).camera_rpy_rad for _ in range(900)]
+    # 60 s of the scene's attitude, drawn before the fake autopilot starts its clock: enough however
+    # long the loaded machine takes to sync and check (drawn after the start, 30 s were not, with
+    # `make test38` beside two evaluation jobs on 2 cores)
+    rpy = [next(frames).camera_rpy_rad for _ in range(1800)]
+    port = free_port()
+    fake = start_fake(fakes, tmp_path, f"udpin:127.0.0.1:{port}", "--scene-seed", "3", "--scene-fps", "30")
     link = MavlinkLink(link_cfg(f"udpout:127.0.0.1:{port}"))
     with link:
         wait_for(lambda: link.status.time_synced and link.attitude_at(time.monotonic_ns() - 1_000_000_000),
-                 25.0, "1 s of scene attitude")  # within the 30 s of attitude above
+                 25.0, "1 s of scene attitude")  # within the 60 s of attitude above
         checked = 0
         deadline = time.monotonic() + 15.0  # a starved fake autopilot leaves spans without attitude: wait them out
         while checked < 5 and time.monotonic() < deadline:
