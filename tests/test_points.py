@@ -1,5 +1,7 @@
 """The isolated-spot detector (payload.detect.points) and its place in the scan and the local stage."""
 
+from unittest import mock
+
 import numpy as np
 import pytest
 
@@ -152,50 +154,40 @@ def test_the_spot_look_covers_the_whole_frame_in_its_turns(tmp_path, size_wh, xy
     results = [glad.process(_grey_spot_frame(i, xy=xy, size_wh=size_wh)) for i in range(first + 1)]
     # GAD | the scan, band 0 | the spots, band 1 | GAD | the scan, band 2 (global motion off)
     assert [len(r.detections) for r in results] == [0] * first + [1]
+    assert [[m for m in ("GAD", "scan", "points") if m in r.timings_ms] for r in results] == [
+        ["GAD"], ["scan", "points"], ["points"], ["GAD"], ["scan", "points"]][:first + 1]
     hit = results[-1].detections
     assert list(hit.module) == ["GAD"] and results[-1].mode == "global"
     # the spot and a pixel around it (reported on the spot's centroid: within a twentieth of a pixel)
     assert np.allclose(hit.xyxy[0], [xy[0] - 1, xy[1] - 1, xy[0] + 5, xy[1] + 5], atol=0.05)
 
 
-def _counting_spots(glad):
-    """``glad`` with its global spot search counted: a list that grows by one each band searched."""
-    calls, search = [], glad._spots
-
-    def counted(image):
-        calls.append(1)
-        return search(image)
-
-    glad._spots = counted
-    return calls
-
-
 def test_with_nothing_followed_the_scans_turn_searches_a_band_of_spots_too(tmp_path):
     # GAD's turn (its network on the whole frame, the dearest look) stays alone; the scan's takes a
-    # band after its tiles, so that three bands are searched every three frames, not every nine
+    # band after its tiles, so that two bands are searched every three frames, not one
     from test_pipeline import _spot_glad
 
     glad = _spot_glad(tmp_path, **{"detector.global.scan.tiles_per_frame": 1})
-    calls = _counting_spots(glad)
+    spots = glad._spots = mock.Mock(wraps=glad._spots)  # each band searched counted
     looks = []
     for i in range(6):
-        before = len(calls)
+        before = spots.call_count
         r = glad.process(_grey_spot_frame(i, xy=(0, 0), size_wh=(1920, 1080)))  # the spot too dim for GAD's
         assert r.target is None                                                # bright-spot network
-        looks.append(([m for m in ("GAD", "scan") if m in r.timings_ms], len(calls) - before))
+        looks.append(([m for m in ("GAD", "scan") if m in r.timings_ms], spots.call_count - before))
     assert looks == [(["GAD"], 0), (["scan"], 1), ([], 1)] * 2
 
 
 def test_a_followed_target_gives_the_spots_their_own_turns_back(tmp_path):
     # beside a followed target the local stage has this frame's time: the spots keep to their turn
     glad, i = _locked_on_the_spot(tmp_path, **{"detector.targets.max": 2, "detector.targets.search_every": 1})
-    calls = _counting_spots(glad)
+    spots = glad._spots = mock.Mock(wraps=glad._spots)  # each band searched counted
     turns = []
     for j in range(i, i + 9):
-        before = len(calls)
+        before = spots.call_count
         r = glad.process(_grey_spot_frame(j))
         assert len(r.detections)  # followed and reported, the global stage looking for more every frame
-        turns.append(("GAD" in r.timings_ms, "scan" in r.timings_ms, len(calls) - before))
+        turns.append(("GAD" in r.timings_ms, "scan" in r.timings_ms, spots.call_count - before))
     assert sorted(set(turns)) == [(False, False, 1), (False, True, 0), (True, False, 0)]
 
 
