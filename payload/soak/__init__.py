@@ -15,7 +15,9 @@ soak's folder. On a schedule, one fault at a time, in turn:
 
 Meanwhile the service's RSS, open fds and threads are sampled from /proc, and its decisions CSV,
 log and the autopilot's record are read as they grow. The report: frames processed, faults
-survived per kind, messages lost, resource use at the start (after the warm-up) and the end,
+survived per kind, messages lost, resource use at the start (after the warm-up) and the end
+(RSS the median of three samples; open fds and threads the fewest in five, since a frame file
+open for reading lands in a sample now and then while a leak stays),
 and per autopilot restart the delay until target messages resumed. Exit status 1 when the
 service died or a criterion failed.
 """
