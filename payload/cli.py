@@ -147,7 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", "-c", default=None, help="YAML file (default: built-in defaults)")
     p.add_argument("--folds", default=None, help="fold definition (default: payload/eval/folds.json)")
     p.add_argument("--fold-models", default=None, metavar="DIR",
-                   help="DIR/fold{k}/glad_global.onnx, glad_local.onnx, glad_classifier.onnx trained without fold k "
+                   help="DIR/fold{k}/glad_global.onnx, glad_local.onnx, glad_classifier.onnx (training/cv_train.py) "
+                        "and glad_verifier.onnx (training/train_verifier.py --export-folds), trained without fold k "
                         "(default: the shipped models, which saw these clips: optimistic)")
     p.add_argument("--splits", default=None, help="Halmstad splits.json, to find the data (default: ../shared/data/halmstad)")
     p.add_argument("--limit", type=int, default=0, help="only the first N frames of each clip (0 = all)")

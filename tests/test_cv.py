@@ -302,6 +302,14 @@ def test_fold_model_files_of_a_fold_and_of_all_folds(tmp_path):
     with pytest.raises(UsageError, match="all/glad_local.onnx") as raised:
         cv.fold_model_files(str(tmp_path), ["all", 0])
     assert "fold0/glad_global.onnx" in str(raised.value)  # every missing file, in one line
+    # a fold's own verifier: required, since the shipped one learned every fold's locks
+    os.remove(str(tmp_path / "fold1" / "glad_verifier.onnx"))
+    with pytest.raises(UsageError, match="fold1/glad_verifier.onnx; a fold's verifier comes from "
+                                         "training/train_verifier.py --export-folds"):
+        cv.fold_model_files(str(tmp_path), [1])
+    # mining locks runs with the verifier off: the detector's three networks suffice
+    assert sorted(cv.fold_model_files(str(tmp_path), [1], cv.DETECTOR_FILES)[1]) == [
+        "detector.classifier.model", "detector.global.appearance.model", "detector.local.appearance.model"]
 
 
 def test_cv_command_with_fold_models(tiny_halmstad, tmp_path, capsys):
@@ -341,3 +349,16 @@ def test_cv_command_without_data_is_a_one_line_error(tmp_path, capsys):
     assert main(["cv", "--splits", str(tmp_path / "absent.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert "no such file" in err and "\n" not in err
+
+
+def test_kept_detections_know_which_verifier_made_them(tmp_path):
+    # A run kept with one verifier must not be taken for another's (the store compares digests).
+    from payload.config import config_with, load_config
+
+    cfg = load_config(None)
+    shipped = cv.model_digests(cfg)
+    other = tmp_path / "verifier.onnx"
+    other.write_bytes(b"not the shipped verifier")
+    assert cv.model_digests(config_with(cfg, **{"detector.verifier.model": str(other)}))["verifier"] != shipped["verifier"]
+    off = cv.model_digests(config_with(cfg, **{"detector.verifier.enabled": False}))
+    assert "verifier" not in off and off["classifier"] == shipped["classifier"]

@@ -178,3 +178,87 @@ def test_train_verifier_refuses_a_bad_count_in_one_line(tmp_path, flag, value, e
     assert proc.stderr.strip().startswith(expected) and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()  # refused before anything is written
+
+
+def _fake_tracks(root, names, n=40, seed=0):
+    """Lock tracks as training/mine_tracks.py writes them: two locks a clip, the first on the drone
+    (in a drone clip), rows of N_FEATURES measurements."""
+    import numpy as np
+
+    from payload.detect.verify import N_FEATURES
+
+    rng = np.random.default_rng(seed)
+    root.mkdir()
+    for name in names:
+        drone = "_DRONE_" in name
+        rows = rng.normal(size=(n, N_FEATURES)).astype(np.float32)
+        rows[:, 0] = 1.0  # present
+        rows[:, 1] += 2.0 if drone else -2.0  # something to learn
+        box = np.tile(np.array([[100, 100, 110, 110]], np.float32), (n, 1))
+        gt = box.copy() if drone else np.full((n, 4), np.nan, np.float32)
+        np.savez(str(root / (name + ".npz")), rows=rows, lock=np.repeat([1, 2], n // 2), box=box, gt=gt,
+                 confirmed=np.ones(n, bool), frames=n, gt_frames=n if drone else 0)
+
+
+def test_each_folds_verifier_is_exported_as_scored(tmp_path):
+    """--export-folds writes the very networks whose held-out probabilities the cross-validation
+    scored, so that glad-payload cv --fold-models runs a verifier that never saw the fold."""
+    import numpy as np
+
+    from payload.detect.onnx_model import OnnxModel
+    from payload.detect.verify import N_FEATURES, LockVerifier
+    from training.train_verifier import main as train_verifier
+
+    names = ["V_DRONE_001", "V_DRONE_040", "V_DRONE_080", "V_BIRD_001", "V_BIRD_020", "V_BIRD_040"]
+    _fake_tracks(tmp_path / "tracks", names)
+    out, models = tmp_path / "run", tmp_path / "models"
+    train_verifier(["--tracks", str(tmp_path / "tracks"), "--out", str(out), "--steps", "30", "--members", "2",
+                    "--min-frames", "4", "--thresholds", "0.5", "--export-folds", str(models)])
+    oof = np.load(str(out / "oof_prob.npz"))
+    assert sorted(os.listdir(str(models))) == ["fold0", "fold1", "fold2"]
+    for fold, name in enumerate(["V_DRONE_001", "V_DRONE_040", "V_DRONE_080"]):
+        model = OnnxModel(str(models / ("fold%d" % fold) / "glad_verifier.onnx"),
+                          expected_inputs={"tracks": (None, None, N_FEATURES)})
+        with np.load(str(tmp_path / "tracks" / (name + ".npz"))) as z:
+            rows = z["rows"]
+        verifier = LockVerifier(model, min_frames=1, threshold=0.5, release_threshold=0.3)
+        for row in rows[:20]:  # the first lock, whole
+            verifier.add(row)
+        # frame 19 of the clip is the first lock's last: the held-out probability of that window
+        assert abs(verifier.probability - float(oof[name][19])) < 1e-4, (fold, name)
+    # the three folds' networks differ (each trained without its own fold)
+    probs = []
+    for fold in range(3):
+        model = OnnxModel(str(models / ("fold%d" % fold) / "glad_verifier.onnx"),
+                          expected_inputs={"tracks": (None, None, N_FEATURES)})
+        verifier = LockVerifier(model, min_frames=1, threshold=0.5, release_threshold=0.3)
+        for row in rows[:20]:
+            verifier.add(row)
+        probs.append(verifier.probability)
+    assert max(probs) - min(probs) > 1e-4
+
+
+def test_a_classifier_from_another_run_replaces_the_classifier_stage(tmp_path, monkeypatch, capsys):
+    import training.cv_train as cv_train
+
+    stages = []
+    monkeypatch.setattr(cv_train, "run_stage", lambda log, name, *a, **k: stages.append(name))
+    monkeypatch.setattr(cv_train, "clip_frames", lambda root: dict.fromkeys(NAMES, 10))
+    given = tmp_path / "clsB" / "fold1" / "glad_classifier.onnx"
+    given.parent.mkdir(parents=True)
+    given.write_bytes(b"fold 1's classifier")
+    tag = str(tmp_path / "run")
+    argv = ["--tag", tag, "--folds-only", "1", "--log", str(tmp_path / "log.txt")]
+    assert cv_train.main(argv + ["--classifier-from", str(tmp_path / "clsB")]) == 0
+    assert (tmp_path / "run" / "models" / "fold1" / "glad_classifier.onnx").read_bytes() == b"fold 1's classifier"
+    assert "fold 1 global detector" in stages and not any("classifier" in s for s in stages)
+    assert "fold 1 export glad_classifier.onnx" not in stages
+    stages.clear()
+    assert cv_train.main(argv) == 0  # without it the shortened classifier is trained and exported
+    assert "fold 1 classifier" in stages and "fold 1 export glad_classifier.onnx" in stages
+    # a fold the other run lacks: one line naming the file, refused before anything trains
+    stages.clear()
+    assert cv_train.main(argv[:2] + ["--folds-only", "1", "0", "--classifier-from", str(tmp_path / "clsB")]) == 2
+    said = capsys.readouterr().out.strip().splitlines()[-1]
+    assert said.endswith("--classifier-from %s: no %s" % (tmp_path / "clsB", tmp_path / "clsB" / "fold0" / "glad_classifier.onnx"))
+    assert stages == []

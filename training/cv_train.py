@@ -5,7 +5,8 @@ kind, issue 16) this builds fold k's training caches from every clip OUTSIDE fol
 the global detector, the local detector and the classifier with the shipped recipe shortened
 (the same step counts for every fold), and exports them to OUT/fold{k}/glad_global.onnx,
 glad_local.onnx, glad_classifier.onnx, which ``glad-payload cv --fold-models OUT`` evaluates on
-fold k's clips.
+fold k's clips together with fold k's lock verifier (``training/train_verifier.py --export-folds
+OUT``, trained on locks mined per fold: payload/models/MODEL_CARD.md).
 
 The shortened recipe (payload/models/MODEL_CARD.md has the shipped one), per fold:
   caches   build_cache.py over the visible drone clips and the visible negatives clips outside
@@ -19,7 +20,9 @@ The shortened recipe (payload/models/MODEL_CARD.md has the shipped one), per fol
   local    train_det.py from the fold's global detector, scale 0.7-1.4, 30 % drone-free, extra
            sets at 55 %, lr 7e-4, --loc-steps (default 1000).
   classifier train_cls.py from scratch on the fold's patches + synthetic + thermal patches,
-           --cls-steps (default 2500; shipped cls5: 5,000).
+           --cls-steps (default 2500; shipped cls5: 5,000); or, with --classifier-from DIR, the
+           fold's classifier of another run (the shipped classifier's recipe per fold, e.g.
+           training/runs/cv/clsB/models, whose verdicts the shipped verifier learned).
   Left out of the shortened recipe: the mined hard negatives (mined1, synth_det_mined: mined
   with a detector trained on every clip) and the ego-motion set (ego1).
 
@@ -39,6 +42,7 @@ import argparse
 import json
 import os
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -131,6 +135,10 @@ def select(names: Sequence[str], sensor: str, negatives: bool, limit: int = 0) -
     return picked[:limit] if limit else picked
 
 
+def given_classifier(root: str, fold: int) -> str:
+    return os.path.join(root, "fold%d" % fold, "glad_classifier.onnx")
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--tag", default="base", help="names the runs and models folder: training/runs/cv/TAG/")
@@ -139,6 +147,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--glb-steps", type=int, default=2500)
     ap.add_argument("--loc-steps", type=int, default=1000)
     ap.add_argument("--cls-steps", type=int, default=2500)
+    ap.add_argument("--classifier-from", default=None, metavar="DIR",
+                    help="take each fold's classifier from DIR/fold{k}/glad_classifier.onnx (another run's, e.g. "
+                         "the shipped classifier's recipe per fold) instead of training the shortened one")
     ap.add_argument("--synth-scenes", type=int, default=30, help="synthetic scenes per synthetic set (two sets)")
     ap.add_argument("--ir-negatives", action="store_true", help="thermal negatives clips join the negatives")
     ap.add_argument("--threads", type=int, default=1, help="torch threads per training run")
@@ -163,16 +174,23 @@ def main(argv: Optional[List[str]] = None) -> int:
         % (args.tag, folds.source, folds.k, args.glb_steps, args.loc_steps, args.cls_steps, args.synth_scenes,
            args.ir_negatives, len(names)))
 
+    todo = args.folds_only if args.folds_only is not None else list(range(folds.k))
+    wrong = [fold for fold in todo if not 0 <= fold < folds.k]
+    if wrong:
+        log("--folds-only %d: no such fold (k=%d)" % (wrong[0], folds.k))
+        return 2
+    missing = [given_classifier(args.classifier_from, fold) for fold in todo] if args.classifier_from else []
+    missing = [path for path in missing if not os.path.isfile(path)]
+    if missing:  # before anything trains
+        log("--classifier-from %s: no %s" % (args.classifier_from, ", ".join(missing)))
+        return 2
     for name, extra in (("synth", []), ("synth2", ["--first-seed", "1100", "--target-px", "4", "14"])):
         run_stage(log, "common %s" % name, os.path.join(common, ".done-" + name),
                   [PY, "training/build_synth_cache.py", "--cache", common, "--name", name,
                    "--scenes", str(args.synth_scenes)] + extra,
                   [os.path.join(common, name + "_det.npz"), os.path.join(common, name + "_cls.npz")])
 
-    for fold in (args.folds_only if args.folds_only is not None else range(folds.k)):
-        if not 0 <= fold < folds.k:
-            log("--folds-only %d: no such fold (k=%d)" % (fold, folds.k))
-            return 2
+    for fold in todo:
         outside = folds.training(names, fold)
 
         v_drones = select(outside, "V", False, args.max_clips)
@@ -216,12 +234,18 @@ def main(argv: Optional[List[str]] = None) -> int:
                   [PY, "training/train_det.py", "--name", os.path.join(rel, "loc"), "--init", glb,
                    "--steps", str(args.loc_steps), "--lr", "7e-4", "--scale-min", "0.7", "--scale-max", "1.4",
                    "--neg-frac", "0.3", "--synth-frac", "0.55"] + det_common, [loc], inputs=[glb])
-        cls = os.path.join(runs, "cls", "last.pt")
-        run_stage(log, "fold %d classifier" % fold, os.path.join(runs, "cls", ".done"),
-                  [PY, "training/train_cls.py", "--name", os.path.join(rel, "cls"), "--steps", str(args.cls_steps),
-                   "--cache", cache, "--threads", str(args.threads), "--resume", "--synth"] + extra_cls, [cls])
-        for kind, ckpt, out in (("det", glb, "glad_global.onnx"), ("det", loc, "glad_local.onnx"),
-                                ("cls", cls, "glad_classifier.onnx")):
+        exports = [("det", glb, "glad_global.onnx"), ("det", loc, "glad_local.onnx")]
+        if args.classifier_from:
+            given = given_classifier(args.classifier_from, fold)
+            shutil.copyfile(given, os.path.join(models, "glad_classifier.onnx"))
+            log("fold %d classifier: copied from %s" % (fold, given))
+        else:
+            cls = os.path.join(runs, "cls", "last.pt")
+            run_stage(log, "fold %d classifier" % fold, os.path.join(runs, "cls", ".done"),
+                      [PY, "training/train_cls.py", "--name", os.path.join(rel, "cls"), "--steps", str(args.cls_steps),
+                       "--cache", cache, "--threads", str(args.threads), "--resume", "--synth"] + extra_cls, [cls])
+            exports.append(("cls", cls, "glad_classifier.onnx"))
+        for kind, ckpt, out in exports:
             target = os.path.join(models, out)
             run_stage(log, "fold %d export %s" % (fold, out), os.path.join(models, ".done-" + out),
                       [PY, "training/export.py", kind, ckpt, target], [target], inputs=[ckpt])

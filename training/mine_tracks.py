@@ -29,7 +29,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from payload.config import config_with, load_config  # noqa: E402
 from payload.detect.pipeline import Glad  # noqa: E402
 from payload.detect.verify import N_FEATURES, PATCH_PX, target_patch  # noqa: E402
-from payload.eval.cv import fold_model_files, halmstad_clips  # noqa: E402
+from payload.eval.cv import DETECTOR_FILES, fold_model_files, halmstad_clips  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
@@ -191,7 +191,7 @@ def main():
         det = cfg
         if args.fold_models:
             which = fold if fold >= 0 else "all"
-            det = config_with(cfg, **fold_model_files(args.fold_models, [which])[which])
+            det = config_with(cfg, **fold_model_files(args.fold_models, [which], DETECTOR_FILES)[which])
         # the verifier off: every lock is followed and reported as today, its rows recorded all the
         # same; one target at a time: a lock's rows are one track's
         return Glad(det.detector.model_copy(update={

@@ -315,7 +315,7 @@ def export(net, path: str, window: int = WINDOW, n_in: int = N_FEATURES) -> None
                       dynamic_axes={"tracks": {0: "n"}, "drone_p": {0: "n"}}, dynamo=False)
 
 
-def main():
+def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--tracks", default="training/cache/tracks")
     ap.add_argument("--out", default="training/runs/verifier")
@@ -330,7 +330,10 @@ def main():
     ap.add_argument("--max-loss", type=float, default=0.05, help="centre-F each drone group may lose to the verifier")
     ap.add_argument("--look", action="store_true", help="append the look features of the target's patches")
     ap.add_argument("--export", default=None, help="also train on every clip and write this ONNX file")
-    args = ap.parse_args()
+    ap.add_argument("--export-folds", default=None, metavar="DIR",
+                    help="write each fold's networks (the ones scored here) to DIR/fold{k}/glad_verifier.onnx, "
+                         "for glad-payload cv --fold-models DIR")
+    args = ap.parse_args(argv)
     if args.members < 1:
         raise SystemExit("--members %d: expected at least 1 network" % args.members)
     if args.window < 4:
@@ -352,6 +355,11 @@ def main():
         for c in clips:
             if c["fold"] == fold:
                 prob[c["name"]] = predict(net, c["windows"])
+        if args.export_folds:
+            path = os.path.join(args.export_folds, "fold%d" % fold, "glad_verifier.onnx")
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            export(net, path, args.window, clips[0]["rows"].shape[1])
+            print("wrote %s" % path, flush=True)
     folds = [[c for c in clips if c["fold"] == f] for f in range(k)]
     report = {"features": list(FEATURES) + (list(LOOK_FEATURES) if args.look else []), "window": args.window,
               "steps": args.steps, "members": args.members, "rules": {}}

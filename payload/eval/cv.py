@@ -36,11 +36,15 @@ DRONE_GROUPS = ("visible drones", "thermal drones")
 NEGATIVE_GROUPS = ("visible negatives", "thermal negatives")
 GROUPS = DRONE_GROUPS + NEGATIVE_GROUPS
 #: config key -> file name in DIR/fold{k}/
-MODEL_FILES = (
+#: The networks that find and judge a box (training/cv_train.py); what mining locks runs.
+DETECTOR_FILES = (
     ("detector.global.appearance.model", "glad_global.onnx"),
     ("detector.local.appearance.model", "glad_local.onnx"),
     ("detector.classifier.model", "glad_classifier.onnx"),
 )
+#: And the lock verifier: the shipped one learned every fold's locks; a fold's own comes from
+#: training/train_verifier.py --export-folds.
+MODEL_FILES = DETECTOR_FILES + (("detector.verifier.model", "glad_verifier.onnx"),)
 SHIPPED_NOTE = "shipped models: trained on clips in these folds, figures optimistic"
 
 #: (column, JSON key, value of a pooled group score); drone groups
@@ -113,30 +117,35 @@ def fold_clips(clips: Sequence[ClipSpec], folds: Folds, limit_clips: int = 0) ->
     return out
 
 
-def fold_model_files(models_dir: str, folds: Sequence[Union[int, str]]) -> Dict[Union[int, str], Dict[str, str]]:
+def fold_model_files(models_dir: str, folds: Sequence[Union[int, str]],
+                     wanted: Sequence[Tuple[str, str]] = MODEL_FILES) -> Dict[Union[int, str], Dict[str, str]]:
     """Per fold, config key -> ONNX file under ``models_dir``/fold{k}/ (``models_dir``/all/ for the
-    fold "all": the networks trained on every fold); all must exist."""
+    fold "all": the networks trained on every fold); all ``wanted`` must exist."""
     out, missing = {}, []
     for fold in folds:
         files = {}
-        for key, name in MODEL_FILES:
+        for key, name in wanted:
             path = os.path.join(models_dir, "all" if fold == "all" else "fold%d" % fold, name)
             if not os.path.isfile(path):
                 missing.append(path)
             files[key] = path
         out[fold] = files
     if missing:
-        raise UsageError("--fold-models %s: missing %s" % (models_dir, ", ".join(missing)))
+        hint = ("; a fold's verifier comes from training/train_verifier.py --export-folds %s" % models_dir
+                if any(p.endswith("glad_verifier.onnx") for p in missing) else "")
+        raise UsageError("--fold-models %s: missing %s%s" % (models_dir, ", ".join(missing), hint))
     return out
 
 
 def model_digests(cfg) -> Dict[str, str]:
-    """SHA-256 (first 16 hex digits) of the three ONNX files a config runs (shipped where unset), so
+    """SHA-256 (first 16 hex digits) of the ONNX files a config runs (shipped where unset), so
     that detections kept from other weights at the same path are not taken for these."""
     from payload.detect.factory import builtin_model_path
 
     files = {"global": cfg.detector.global_.appearance.model, "local": cfg.detector.local.appearance.model,
              "classifier": cfg.detector.classifier.model}
+    if cfg.detector.verifier.enabled:
+        files["verifier"] = cfg.detector.verifier.model
     out = {}
     for name, path in sorted(files.items()):
         path = path or builtin_model_path(name)
