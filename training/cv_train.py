@@ -6,7 +6,7 @@ the global detector, the local detector and the classifier with the shipped reci
 (the same step counts for every fold), and exports them to OUT/fold{k}/glad_global.onnx,
 glad_local.onnx, glad_classifier.onnx, which ``glad-payload cv --fold-models OUT`` evaluates on
 fold k's clips together with fold k's lock verifier (``training/train_verifier.py --export-folds
-OUT``, trained on locks mined per fold: payload/models/MODEL_CARD.md).
+OUT``: the verifier trained without fold k's locks; payload/models/MODEL_CARD.md).
 
 The shortened recipe (payload/models/MODEL_CARD.md has the shipped one), per fold:
   caches   build_cache.py over the visible drone clips and the visible negatives clips outside
