@@ -216,25 +216,23 @@ def test_each_folds_verifier_is_exported_as_scored(tmp_path):
                     "--min-frames", "4", "--thresholds", "0.5", "--export-folds", str(models)])
     oof = np.load(str(out / "oof_prob.npz"))
     assert sorted(os.listdir(str(models))) == ["fold0", "fold1", "fold2"]
-    for fold, name in enumerate(["V_DRONE_001", "V_DRONE_040", "V_DRONE_080"]):
-        model = OnnxModel(str(models / ("fold%d" % fold) / "glad_verifier.onnx"),
-                          expected_inputs={"tracks": (None, None, N_FEATURES)})
-        with np.load(str(tmp_path / "tracks" / (name + ".npz"))) as z:
-            rows = z["rows"]
-        verifier = LockVerifier(model, min_frames=1, threshold=0.5, release_threshold=0.3)
-        for row in rows[:20]:  # the first lock, whole
-            verifier.add(row)
-        # frame 19 of the clip is the first lock's last: the held-out probability of that window
-        assert abs(verifier.probability - float(oof[name][19])) < 1e-4, (fold, name)
-    # the three folds' networks differ (each trained without its own fold)
-    probs = []
-    for fold in range(3):
+
+    def first_lock_probability(fold, rows):
+        """Fold ``fold``'s exported verifier after the clip's first lock (its first 20 rows), whole."""
         model = OnnxModel(str(models / ("fold%d" % fold) / "glad_verifier.onnx"),
                           expected_inputs={"tracks": (None, None, N_FEATURES)})
         verifier = LockVerifier(model, min_frames=1, threshold=0.5, release_threshold=0.3)
         for row in rows[:20]:
             verifier.add(row)
-        probs.append(verifier.probability)
+        return verifier.probability
+
+    for fold, name in enumerate(["V_DRONE_001", "V_DRONE_040", "V_DRONE_080"]):
+        with np.load(str(tmp_path / "tracks" / (name + ".npz"))) as z:
+            rows = z["rows"]
+        # frame 19 of the clip is the first lock's last: the held-out probability of that window
+        assert abs(first_lock_probability(fold, rows) - float(oof[name][19])) < 1e-4, (fold, name)
+    # the three folds' networks differ (each trained without its own fold)
+    probs = [first_lock_probability(fold, rows) for fold in range(3)]
     assert max(probs) - min(probs) > 1e-4
 
 
