@@ -20,8 +20,8 @@ def spot_model(tmp_path):
     return OnnxModel(bright_spot_detector(tmp_path / "spot.onnx"), threads=1)
 
 
-def detector(model, input_wh, confidence=0.5, module="GAD"):
-    return AppearanceDetector(model, AppearanceConfig(confidence=confidence, input_wh=input_wh), module)
+def detector(model, input_wh, confidence=0.5, module="GAD", fit=False):
+    return AppearanceDetector(model, AppearanceConfig(confidence=confidence, input_wh=input_wh), module, fit=fit)
 
 
 @pytest.mark.parametrize(
@@ -74,6 +74,51 @@ def test_small_crop_is_detected_at_native_resolution(spot_model):
     assert len(dets) == 1
     assert np.allclose(dets.xyxy[0], [340, 680, 344, 684], atol=0.01)
     assert dets.module[0] == "LAD"
+
+
+@pytest.mark.parametrize("image_wh, input_wh, run_wh", [
+    ((640, 512), (640, 384), (480, 384)),  # a Halmstad frame into GAD's input
+    ((1920, 1080), (640, 384), (640, 368)),
+    ((300, 300), (320, 320), (304, 304)),
+    ((500, 400), (320, 320), (320, 256)),  # down-scaled into the input
+    ((20, 10), (320, 320), (32, 16)),
+])
+def test_a_fitted_network_of_any_size_sees_the_image_not_the_whole_input(spot_model, image_wh, input_wh, run_wh):
+    # issue 19: the input is the fitted image's size rounded up to 16, not input_wh: a 640x512
+    # frame costs GAD's network 480x384, not 640x384; the boxes map back the same
+    det = detector(spot_model, input_wh, confidence=0.9, fit=True)
+    assert det.multiple == 16
+    w, h = image_wh
+    scale = min(input_wh[0] / w, input_wh[1] / h, 1.0)
+    side = int(np.ceil(4 / scale))  # a spot of 4 input px: one network cell
+    x, y = (w - side) // 4 * 4 if scale == 1 else 0, (h - side) // 4 * 4 if scale == 1 else 0  # at the edge
+    image = np.zeros((h, w, 3), np.uint8)
+    image[y:y + side, x:x + side] = 255
+    seen, run = [], spot_model.run
+    spot_model.run = lambda feeds: seen.append(next(iter(feeds.values())).shape) or run(feeds)
+    dets = det.detect(image, offset_xy=(100, 50))
+    assert seen == [(1, 3, run_wh[1], run_wh[0])]
+    assert len(dets) == 1
+    assert np.allclose(dets.xyxy[0], [100 + x, 50 + y, 100 + x + side, 50 + y + side], atol=0.6 / scale)
+
+
+@pytest.mark.parametrize("why", ["fixed size", "gpu provider", "not fitted"])
+def test_a_network_that_cannot_take_any_size_always_gets_its_whole_input(tmp_path, why):
+    # a model exported at one size refuses others; on a GPU provider every new size would build
+    # the engine again (seconds in the air); LAD is not fitted (its search region at its own size
+    # lost thermal and synthetic F): all run at input_wh
+    path = bright_spot_detector(tmp_path / "spot.onnx", hw=(320, 320) if why == "fixed size" else ("H", "W"))
+    model = OnnxModel(path, threads=1)
+    if why == "gpu provider":
+        model.providers = ["CUDAExecutionProvider", "CPUExecutionProvider"]  # what a GPU session reports
+    det = detector(model, (320, 320), confidence=0.9, module="LAD", fit=why != "not fitted")
+    assert det.multiple == 0
+    seen, run = [], model.run
+    model.run = lambda feeds: seen.append(next(iter(feeds.values())).shape) or run(feeds)
+    crop = np.zeros((300, 300, 3), np.uint8)
+    crop[40:44, 80:84] = 255
+    dets = det.detect(crop)
+    assert seen == [(1, 3, 320, 320)] and len(dets) == 1 and np.allclose(dets.xyxy[0], [80, 40, 84, 44])
 
 
 def test_confidence_threshold_and_hot_reload(spot_model):
@@ -153,6 +198,13 @@ def test_shipped_local_detector_finds_the_drone_in_a_search_region(halmstad_dir)
     best = dets.sorted_by_score()[0]
     assert iou_matrix(best.xyxy[0], truth)[0, 0] > 0.5, (best.xyxy, truth)
     assert best.module[0] == "LAD"
+
+
+def test_the_shipped_global_detector_runs_at_the_frames_own_size_the_local_at_its_input():
+    _shipped("global")
+    _shipped("local")
+    models = build_detectors(DetectorConfig())
+    assert (models.global_appearance.multiple, models.local_appearance.multiple) == (16, 0)
 
 
 def test_build_detectors_respects_enabled_switches():

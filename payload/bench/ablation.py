@@ -110,7 +110,9 @@ def run_row(cfg: Config, row: Row, clips: Sequence[ClipSpec], limit: int = 0) ->
         found: Dict[int, Detections] = {}
         runner.reset()
         capture = clip.capture or recording_config(row_cfg, clip.video).capture
-        with open_source(capture) as frames_in:
+        source = open_source(capture)
+        source.prepare = getattr(runner, "prepare", None)  # as the service: GLAD's work on the capture thread
+        with source as frames_in:
             t_clip = time.perf_counter()
             for frame in frames_in:
                 if limit and frame.index >= limit:

@@ -59,7 +59,9 @@ def build_detectors(cfg: DetectorConfig) -> DetectorModels:
             return None
         key = "detector.%s.appearance.model" % name
         m = model(app.model, name, key, {"images": 3}, (app.input_wh[1], app.input_wh[0]))
-        return AppearanceDetector(m, app, module)
+        # GAD at its frame's own size (the networks take any size; ~25 % of GAD's time at 640x512);
+        # LAD at its whole input, as measured: payload.detect.appearance
+        return AppearanceDetector(m, app, module, fit=module == GAD)
 
     classifier = None
     if cfg.classifier.enabled:

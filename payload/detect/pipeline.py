@@ -43,7 +43,6 @@ import cv2
 import numpy as np
 
 from payload.config import DetectorConfig, section_changes
-from payload.detect.appearance import letterbox
 from payload.detect.ego_motion import CameraMotion, EgoMotion, GreyLevels
 from payload.detect.factory import DetectorModels, build_detectors
 from payload.detect.motion import MotionDetector
@@ -54,6 +53,8 @@ from payload.detect.tracks import Track, TrackedTarget, is_far, merge_overlappin
 from payload.types import GAD, GMD, LAD, LMD, Detections, Frame, Target
 
 SCAN = "scan"  # the global stage's native-resolution looks: the local network on tiles (payload.detect.scan)
+GREY = "grey"  # Frame.prepared: the frame's GreyLevels, made by Glad.prepare
+CAMERA = "camera"  # ... and the camera motion from the frame prepared before it
 POINTS = "points"  # ... and isolated spots over the whole frame (payload.detect.points), a band a turn
 # at most this many pixels a band (a 1080p frame in three, 1280x720 in two): ~6 ms on one core, the
 # three colour channels' spots costing twice the grey level's
@@ -127,26 +128,46 @@ class Glad:
         self._turn = -1  # the global look whose turn it was last (payload.detect.pipeline._spread)
         self._looks = 1  # how many global looks take turns (1: no turns)
         self._gad_next = True  # whether the next frame's global look may be GAD's (Glad.prepare)
+        self._gmd_next = True  # ... may be GMD's
+        self._look_order: List[str] = []  # the looks that took turns on the last global frame
         # this frame's camera motion for the local stage (one estimate for every track) and its matrix
         self._camera: Optional[CameraMotion] = None
+        self._camera_made: Optional[CameraMotion] = None  # ... as the capture thread made it (prepare)
         self._homography: Optional[np.ndarray] = None
         self._degraded: Dict[str, int] = {}
         self._prev: Optional[GreyLevels] = None
         self._prev_t_ns: Optional[int] = None
+        self._prepared_prev: Optional[GreyLevels] = None  # the capture thread's: the last frame it prepared
 
     def prepare(self, frame: Frame) -> None:
         """Work a coming frame step will need, done on the capture thread (``FrameSource.prepare``):
-        on a frame GAD down-scales strongly (1080p: ~3 ms of its ~13 on one core) and while the next
-        global look may be GAD's, GAD's input (down-scaled, padded, in float). It overlaps detection
-        when the detector is still busy with the previous frame; at camera rate it only comes before
-        the hand-over. Reads settings and a flag the frame step leaves (``_gad_next``); a frame read
-        ahead may find it stale: GAD then makes its input itself. The grey levels are not made here:
-        paced, the frame step's GMD and spots then ran ~1.5 ms slower each on this 2-core host (the
-        grey made on the other core), for no lower latency."""
+        the frame's grey levels and camera motion (``_prepare_camera``) and, on a frame GAD
+        down-scales strongly (1080p: ~3 ms of its ~13 on one core) while the next global look may be
+        GAD's, GAD's input (down-scaled, padded, in float). It overlaps detection when the detector
+        is still busy with the previous frame; at camera rate it only comes before the hand-over.
+        Reads settings and flags the frame step leaves (``tracks``, ``_gad_next``, ``_gmd_next``); a
+        frame read ahead may find them stale: the frame step then does the work itself."""
+        self._prepare_camera(frame)
         gad = self.models.global_appearance
         if gad is None or not self._gad_next or not self.cfg.global_.appearance.enabled or not self._scanned(frame):
             return
-        frame.prepared[GAD] = letterbox(frame.image, gad.input_wh)
+        frame.prepared[GAD] = gad.letterbox(frame.image)
+
+    def _prepare_camera(self, frame: Frame) -> None:
+        """The frame's grey levels and the camera motion from the frame prepared before it, made on
+        the capture thread: the local stage's (coarse) while a target is followed, GMD's (fine)
+        when its look may come next (``_gmd_next``). The frame step uses a motion only if the frame
+        it processed last is that one, with the settings in force (``_prepared_camera``; after a
+        dropped frame or a reset it estimates its own)."""
+        grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
+        frame.prepared[GREY] = grey
+        prev, self._prepared_prev = self._prepared_prev, grey
+        if prev is None or prev.full.shape != grey.full.shape:
+            return
+        levels = ([False] if self.tracks else []) + ([True] if self._gmd_next else [])
+        if levels:
+            motion = self.ego_motion
+            frame.prepared[CAMERA] = (prev, motion.cfg, {fine: motion.estimate(prev, grey, fine=fine) for fine in levels})
 
     @property
     def designated(self) -> bool:
@@ -240,7 +261,7 @@ class Glad:
         self._turn = -1
         self._spot_band = 0
         self.scan.reset()
-        self._looks, self._gad_next = 1, True
+        self._looks, self._gad_next, self._gmd_next, self._look_order = 1, True, True, []
         self._prev = self._prev_t_ns = None
 
     # --- the per-frame step -------------------------------------------------------------
@@ -248,9 +269,12 @@ class Glad:
     def process(self, frame: Frame) -> GladResult:
         timings: Dict[str, float] = {}
         t0 = time.perf_counter()
-        grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
+        grey = frame.prepared.get(GREY)
+        if not isinstance(grey, GreyLevels) or grey.full.shape != frame.image.shape[:2]:
+            grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
         timings["grey"] = _ms(t0)
         self._camera, self._homography = None, None
+        self._camera_made = self._prepared_camera(frame, fine=False)
         self._degraded = {}
         candidates: List[Detections] = []
         # a target without a local stage to follow it (global-only) lives one frame: every global
@@ -287,7 +311,10 @@ class Glad:
         judged = primary if primary is not None else (self.tracks[0] if self.tracks else None)
         if judged is not None:
             lock_p = judged.verifier.probability
-        self._gad_next = self._search_due() and (self._turn + 1) % self._looks == 0
+        search_next = self._search_due()
+        self._gad_next = search_next and (self._turn + 1) % self._looks == 0
+        # without turns GMD runs whenever GAD finds nothing
+        self._gmd_next = search_next and (self._looks == 1 or self._look_order[(self._turn + 1) % self._looks] == GMD)
         targets = tuple(TrackedTarget(t.id, t.target, t.detections, t is primary, t.designated, t.verifier.probability)
                         for t in reported)
         if len(reported) > 1:
@@ -397,7 +424,9 @@ class Glad:
                                           letterboxed=frame.prepared.get(GAD)))
         if not len(found) and GMD in looks:
             t = time.perf_counter()
-            camera = self.ego_motion.estimate(prev, grey, fine=True)
+            camera = self._prepared_camera(frame, fine=True)
+            if camera is None:
+                camera = self.ego_motion.estimate(prev, grey, fine=True)
             found = keep(self._motion(self.gmd, frame.image, prev.full, grey.full, camera, (0, 0), t, timings, candidates))
         if not len(found) and SCAN in looks:
             scanned = self._scan(frame, timings)
@@ -431,7 +460,7 @@ class Glad:
         camera's 33 ms; one a frame stays near the dearest one's ~15 ms. On synthetic 1080p scenes
         GAD, GMD and the scan in turn found as much as all three at once (docs/results.md). With
         nothing followed, ``_global`` adds a band of spots to GMD's and the scan's turns."""
-        self._looks = len(looks)
+        self._looks, self._look_order = len(looks), list(looks)
         self._turn = (self._turn + 1) % len(looks)
         return [looks[self._turn]]
 
@@ -487,10 +516,24 @@ class Glad:
         _add(timings, "switcher", _ms(t))
         return started
 
+    def _prepared_camera(self, frame: Frame, fine: bool) -> Optional[CameraMotion]:
+        """The camera motion at this level of detail made by ``prepare`` for this frame, if it was
+        made from the very grey levels this step holds as the previous frame's and with the
+        settings in force; else None."""
+        prepared = frame.prepared.get(CAMERA)
+        if not (isinstance(prepared, tuple) and len(prepared) == 3 and isinstance(prepared[2], dict)):
+            return None
+        prev, cfg, made = prepared
+        camera = made.get(fine)
+        if self._prev is None or prev is not self._prev or cfg is not self.ego_motion.cfg or not isinstance(camera, CameraMotion):
+            return None
+        return camera
+
     def _local_camera(self, grey: GreyLevels) -> CameraMotion:
         """This frame's camera motion for the local stage: estimated once, shared by every track."""
         if self._camera is None:
-            self._camera = self.ego_motion.estimate(self._prev, grey, fine=False)
+            self._camera = self._camera_made if self._camera_made is not None else self.ego_motion.estimate(
+                self._prev, grey, fine=False)
             self._homography = self._camera.matrix if self._prev is not None else None
         return self._camera
 
