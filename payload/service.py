@@ -136,7 +136,7 @@ class Service:
         self.step = FrameStep(self.glad, self.bearings, self.geo, self.link, self.publisher, self.camera,
                               self._detections_csv, self._decisions_csv, self.video)
         self.source = open_source(cfg.capture)
-        self.source.prepare = self.glad.prepare  # GAD's down-scaled input made on the capture thread
+        self.source.prepare = self.glad.prepare  # grey levels, camera motion, GAD's input: made on the capture thread
         self.source.open()
         log.info("started source=%s mavlink=%s outputs=%s", cfg.capture.source,
                  cfg.mavlink.connection if cfg.mavlink.enabled else "off", cfg.outputs.directory or "off")

@@ -23,7 +23,7 @@ class Frame:
     """One camera image (BGR, uint8, HxWx3) with its index and capture times.
 
     ``prepared``: work on the image done ahead on the capture thread (``FrameSource.prepare``), by
-    the consumer's key (GLAD: GAD's down-scaled input); whoever uses it must do the same without it.
+    the consumer's key (GLAD: grey levels, camera motion, GAD's input); whoever uses it must do the same without it.
     """
 
     image: np.ndarray

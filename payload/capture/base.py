@@ -39,7 +39,7 @@ class FrameSource(abc.ABC):
         self.stats = SourceStats()
         #: Called on each new frame by a source with a thread of its own (a camera, a recording read
         #: ahead or played at camera rate) before the consumer gets it, so that work the consumer
-        #: will need (GLAD: GAD's down-scaled input) runs on another core (issue 19); None: nothing.
+        #: will need (GLAD: grey levels, camera motion, GAD's input) runs on another core (issue 19); None: nothing.
         self.prepare: Optional[Callable[[Frame], None]] = None
         self._prepare_failed = False
 
