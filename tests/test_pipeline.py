@@ -502,3 +502,21 @@ def test_a_camera_motion_made_ahead_that_does_not_fit_is_not_taken(moving_camera
         _same_result(plain.process(_fresh(frame)), rb)
         assert ahead._camera_made is None or bogus == "grey of another size"
     assert spoiled >= 7
+
+
+@pytest.mark.parametrize("gmd", [True, False])
+def test_gmds_camera_motion_is_made_ahead_only_for_a_gmd_that_may_run(moving_camera_frames, gmd):
+    # at 640x360 the global looks take no turns: GMD may run on every searching frame, so its (fine)
+    # estimate is made ahead then, unless GMD is switched off
+    from payload.config import config_with
+    from payload.detect.pipeline import CAMERA, Glad
+    from payload.types import Frame
+
+    glad = Glad(config_with(Config(), **{"detector.global.motion.enabled": gmd}).detector)
+    made = set()
+    for frame in moving_camera_frames[:12]:
+        b = Frame(cv2.resize(frame.image, (640, 360), interpolation=cv2.INTER_AREA), frame.index, frame.t_capture_ns, 0)
+        glad.prepare(b)
+        made.update(b.prepared.get(CAMERA, (None, None, {}))[2])
+        glad.process(b)
+    assert (True in made) == gmd

@@ -164,7 +164,8 @@ class Glad:
         prev, self._prepared_prev = self._prepared_prev, grey
         if prev is None or prev.full.shape != grey.full.shape:
             return
-        levels = ([False] if self.tracks else []) + ([True] if self._gmd_next else [])
+        gmd = self._gmd_next and self.cfg.global_.motion.enabled
+        levels = ([False] if self.tracks else []) + ([True] if gmd else [])
         if levels:
             motion = self.ego_motion
             frame.prepared[CAMERA] = (prev, motion.cfg, {fine: motion.estimate(prev, grey, fine=fine) for fine in levels})
