@@ -62,15 +62,21 @@ class Letterbox:
 FIT_MULTIPLE = 16
 
 
+def _fitted(image_wh: Tuple[int, int], input_wh: Tuple[int, int]) -> Tuple[int, int]:
+    """The image's size (w, h) fitted into ``input_wh`` keeping its aspect, down-scaled only."""
+    w, h = int(image_wh[0]), int(image_wh[1])
+    in_w, in_h = int(input_wh[0]), int(input_wh[1])
+    scale = min(in_w / float(w), in_h / float(h), 1.0)
+    return min(in_w, max(1, int(round(w * scale)))), min(in_h, max(1, int(round(h * scale))))
+
+
 def input_size(image_wh: Tuple[int, int], input_wh: Tuple[int, int], multiple: int = 0) -> Tuple[int, int]:
     """The input size (w, h) an image of ``image_wh`` is run at: ``input_wh``, or with ``multiple``
     the image fitted into it (down-scale only) rounded up to that step."""
     in_w, in_h = int(input_wh[0]), int(input_wh[1])
     if not multiple:
         return in_w, in_h
-    w, h = int(image_wh[0]), int(image_wh[1])
-    scale = min(in_w / float(w), in_h / float(h), 1.0)
-    new_w, new_h = min(in_w, max(1, int(round(w * scale)))), min(in_h, max(1, int(round(h * scale))))
+    new_w, new_h = _fitted(image_wh, input_wh)
     return min(in_w, -(-new_w // multiple) * multiple), min(in_h, -(-new_h // multiple) * multiple)
 
 
@@ -81,9 +87,7 @@ def letterbox(image_bgr: np.ndarray, input_wh: Tuple[int, int],
     and the mapping back to the image. With ``multiple``, H and W are the fitted image's rounded
     up to that step (``input_size``), not input_wh's."""
     h, w = image_bgr.shape[:2]
-    in_w, in_h = int(input_wh[0]), int(input_wh[1])
-    scale = min(in_w / float(w), in_h / float(h), 1.0)
-    new_w, new_h = min(in_w, max(1, int(round(w * scale)))), min(in_h, max(1, int(round(h * scale))))
+    new_w, new_h = _fitted((w, h), input_wh)
     in_w, in_h = input_size((w, h), input_wh, multiple)
     if (new_w, new_h) != (w, h):
         image_bgr = cv2.resize(image_bgr, (new_w, new_h), interpolation=cv2.INTER_AREA)

@@ -126,13 +126,11 @@ class Glad:
         self._primary_id: Optional[int] = None  # last frame's primary: kept unless another is clearly better
         self._since_search = 0  # frames since the global stage last ran
         self._turn = -1  # the global look whose turn it was last (payload.detect.pipeline._spread)
-        self._looks = 1  # how many global looks take turns (1: no turns)
+        self._look_order: List[str] = []  # the looks that took turns on the last global frame (none: no turns)
         self._gad_next = True  # whether the next frame's global look may be GAD's (Glad.prepare)
         self._gmd_next = True  # ... may be GMD's
-        self._look_order: List[str] = []  # the looks that took turns on the last global frame
         # this frame's camera motion for the local stage (one estimate for every track) and its matrix
         self._camera: Optional[CameraMotion] = None
-        self._camera_made: Optional[CameraMotion] = None  # ... as the capture thread made it (prepare)
         self._homography: Optional[np.ndarray] = None
         self._degraded: Dict[str, int] = {}
         self._prev: Optional[GreyLevels] = None
@@ -262,7 +260,7 @@ class Glad:
         self._turn = -1
         self._spot_band = 0
         self.scan.reset()
-        self._looks, self._gad_next, self._gmd_next, self._look_order = 1, True, True, []
+        self._look_order, self._gad_next, self._gmd_next = [], True, True
         self._prev = self._prev_t_ns = None
 
     # --- the per-frame step -------------------------------------------------------------
@@ -275,7 +273,6 @@ class Glad:
             grey = GreyLevels.of(cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY))
         timings["grey"] = _ms(t0)
         self._camera, self._homography = None, None
-        self._camera_made = self._prepared_camera(frame, fine=False)
         self._degraded = {}
         candidates: List[Detections] = []
         # a target without a local stage to follow it (global-only) lives one frame: every global
@@ -313,9 +310,10 @@ class Glad:
         if judged is not None:
             lock_p = judged.verifier.probability
         search_next = self._search_due()
-        self._gad_next = search_next and (self._turn + 1) % self._looks == 0
+        order = self._look_order
+        self._gad_next = search_next and (not order or (self._turn + 1) % len(order) == 0)
         # without turns GMD runs whenever GAD finds nothing
-        self._gmd_next = search_next and (self._looks == 1 or self._look_order[(self._turn + 1) % self._looks] == GMD)
+        self._gmd_next = search_next and (not order or order[(self._turn + 1) % len(order)] == GMD)
         targets = tuple(TrackedTarget(t.id, t.target, t.detections, t is primary, t.designated, t.verifier.probability)
                         for t in reported)
         if len(reported) > 1:
@@ -461,7 +459,7 @@ class Glad:
         camera's 33 ms; one a frame stays near the dearest one's ~15 ms. On synthetic 1080p scenes
         GAD, GMD and the scan in turn found as much as all three at once (docs/results.md). With
         nothing followed, ``_global`` adds a band of spots to GMD's and the scan's turns."""
-        self._looks, self._look_order = len(looks), list(looks)
+        self._look_order = list(looks)
         self._turn = (self._turn + 1) % len(looks)
         return [looks[self._turn]]
 
@@ -530,11 +528,13 @@ class Glad:
             return None
         return camera
 
-    def _local_camera(self, grey: GreyLevels) -> CameraMotion:
-        """This frame's camera motion for the local stage: estimated once, shared by every track."""
+    def _local_camera(self, frame: Frame, grey: GreyLevels) -> CameraMotion:
+        """This frame's camera motion for the local stage: made ahead (``prepare``) or estimated
+        here, once, shared by every track."""
         if self._camera is None:
-            self._camera = self._camera_made if self._camera_made is not None else self.ego_motion.estimate(
-                self._prev, grey, fine=False)
+            self._camera = self._prepared_camera(frame, fine=False)
+            if self._camera is None:
+                self._camera = self.ego_motion.estimate(self._prev, grey, fine=False)
             self._homography = self._camera.matrix if self._prev is not None else None
         return self._camera
 
@@ -545,7 +545,7 @@ class Glad:
         other track goes to ``found_far`` while there is room for another target, else it may
         retarget this track."""
         t = time.perf_counter()
-        camera = self._local_camera(grey)
+        camera = self._local_camera(frame, grey)
         dt_s = (frame.t_capture_ns - self._prev_t_ns) / 1e9 if self._prev_t_ns is not None else 1.0 / 30
         predicted = track.region.predict(camera, dt_s)
         region = track.region.region_xyxy(frame.size_wh)
