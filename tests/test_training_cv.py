@@ -260,3 +260,43 @@ def test_a_classifier_from_another_run_replaces_the_classifier_stage(tmp_path, m
     said = capsys.readouterr().out.strip().splitlines()[-1]
     assert said.endswith("--classifier-from %s: no %s" % (tmp_path / "clsB", tmp_path / "clsB" / "fold0" / "glad_classifier.onnx"))
     assert stages == []
+
+
+def test_a_folds_classifier_learns_nothing_of_the_folds_clips_in_either_step(tmp_path, monkeypatch):
+    import training.cv_train as cv_train
+
+    commands = {}
+    monkeypatch.setattr(cv_train, "run_stage", lambda log, name, marker, argv, *a, **k: commands.setdefault(name, argv))
+    monkeypatch.setattr(cv_train, "clip_frames", lambda root: dict.fromkeys(NAMES, 10))
+    folds = cv_train.load_folds(None)
+    thermal_negatives = [n for n in NAMES if n.startswith("IR_") and "DRONE" not in n]
+    assert len({folds.fold_of(n) for n in thermal_negatives}) == 2  # the test needs two folds' objects
+    held = folds.fold_of(thermal_negatives[0])
+    assert cv_train.main(["--tag", str(tmp_path / "run"), "--folds-only", str(held), "--log", str(tmp_path / "log")]) == 0
+
+    # each fold's objects are built from that fold's thermal negatives clips and nothing else
+    objects = {}
+    for name, argv in commands.items():
+        if name.startswith("common thermal objects of fold "):
+            fold = int(name.split()[5])
+            clips = argv[argv.index("--clips") + 1:]
+            assert clips == [n for n in thermal_negatives if folds.fold_of(n) == fold]
+            objects[fold] = argv[argv.index("--name") + 1]
+    assert sorted(objects) == list(range(folds.k))
+
+    first = commands["fold %d classifier" % held]
+    assert "--init" not in first  # the first step starts from nothing that saw a clip
+    second = commands["fold %d classifier, second step" % held]
+    init = second[second.index("--init") + 1]
+    assert init == commands["fold %d export the classifier's first step" % held][-1]
+    hard = second[second.index("--hard") + 1:second.index("--hard-frac")]
+    assert sorted(os.path.basename(p) for p in hard) == sorted(
+        "%s_cls.npz" % objects[j] for j in range(folds.k) if j != held)
+    # both steps read the fold's own patch cache, whose clips are all outside the fold
+    cache = commands["fold %d cache" % held]
+    assert first[first.index("--cache") + 1] == second[second.index("--cache") + 1] == cache[cache.index("--cache") + 1]
+    assert not set(cache[cache.index("--clips") + 1:]) & set(folds.split(NAMES)[held])
+    # the exported classifier is the second step's
+    export = commands["fold %d export glad_classifier.onnx" % held]
+    tuned = os.path.join(cv_train.HERE, "runs", second[second.index("--name") + 1], "last.pt")
+    assert os.path.normpath(export[-2]) == os.path.normpath(tuned)

@@ -19,10 +19,15 @@ The shortened recipe (payload/models/MODEL_CARD.md has the shipped one), per fol
            40 %, lr 3e-3 cosine, --glb-steps (default 2500; shipped: ~12,700 over five runs).
   local    train_det.py from the fold's global detector, scale 0.7-1.4, 30 % drone-free, extra
            sets at 55 %, lr 7e-4, --loc-steps (default 1000).
-  classifier train_cls.py from scratch on the fold's patches + synthetic + thermal patches,
-           --cls-steps (default 2500; shipped cls5: 5,000); or, with --classifier-from DIR, the
-           fold's classifier of another run (the shipped classifier's recipe per fold, e.g.
-           training/runs/cv/clsB/models, whose verdicts the shipped verifier learned).
+  classifier the shipped classifier's two steps: train_cls.py from scratch on the fold's patches +
+           synthetic + thermal patches, --cls-steps (default 2500; shipped cls5: 5,000); then
+           from that network (exported, BatchNorm frozen) --cls-tune-steps (default 1500, as
+           shipped: cls14 / clsB) with the tiny light drones on a clear sky (synth_light, twice) and
+           the labelled objects of the thermal negatives clips of the OTHER folds as a quarter of
+           every batch. Or, with --classifier-from DIR, the fold's classifier of another run.
+           (Before 2026-12-07 the figures used clsB's fold classifiers from training/cv_cls_thermal.py,
+           which start from the shipped cls5 and train on the train split's patches: their drone
+           side had seen most of every fold's clips.)
   Left out of the shortened recipe: the mined hard negatives (mined1, synth_det_mined: mined
   with a detector trained on every clip) and the ego-motion set (ego1).
 
@@ -135,6 +140,29 @@ def select(names: Sequence[str], sensor: str, negatives: bool, limit: int = 0) -
     return picked[:limit] if limit else picked
 
 
+def classifier_tune_sets(log: Log, common: str, names: Sequence[str], folds, scenes: int,
+                         max_clips: int = 0) -> List[str]:
+    """The sets of the classifier's second step in the shipped recipe (MODEL_CARD, clsB), built once
+    for all folds: the labelled objects of the thermal negatives clips of each fold k
+    (irobj{k}_cls.npz, fold k's clips only) and the tiny light drones on a clear sky. Returns the
+    objects' paths, fold by fold, then the light drones' path."""
+    light = os.path.join(common, "synth_light_cls.npz")
+    run_stage(log, "common synth_light", os.path.join(common, ".done-synth_light"),
+              [PY, "training/build_synth_cache.py", "--cache", common, "--name", "synth_light", "--first-seed", "1300",
+               "--scenes", str(scenes), "--target-px", "2", "8", "--drone", "light", "--sky", "clear", "--in-sky",
+               "--min-noise", "5"], [light])
+    objects = []
+    for fold in range(folds.k):
+        clips = [n for n in select(names, "IR", True, max_clips) if folds.fold_of(n) == fold]
+        path = os.path.join(common, "irobj%d_cls.npz" % fold)
+        run_stage(log, "common thermal objects of fold %d (%d clips)" % (fold, len(clips)),
+                  os.path.join(common, ".done-irobj%d" % fold),
+                  [PY, "training/build_cache.py", "--cache", common, "--split", "ir_negatives_train", "--objects",
+                   "--name", "irobj%d" % fold, "--clips"] + clips, [path])
+        objects.append(path)
+    return objects + [light]
+
+
 def given_classifier(root: str, fold: int) -> str:
     return os.path.join(root, "fold%d" % fold, "glad_classifier.onnx")
 
@@ -147,6 +175,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--glb-steps", type=int, default=2500)
     ap.add_argument("--loc-steps", type=int, default=1000)
     ap.add_argument("--cls-steps", type=int, default=2500)
+    ap.add_argument("--cls-tune-steps", type=int, default=1500, help="the classifier's second step (shipped: 1,500)")
     ap.add_argument("--classifier-from", default=None, metavar="DIR",
                     help="take each fold's classifier from DIR/fold{k}/glad_classifier.onnx (another run's, e.g. "
                          "the shipped classifier's recipe per fold) instead of training the shortened one")
@@ -190,6 +219,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                    "--scenes", str(args.synth_scenes)] + extra,
                   [os.path.join(common, name + "_det.npz"), os.path.join(common, name + "_cls.npz")])
 
+    tune_sets = [] if args.classifier_from else classifier_tune_sets(log, common, names, folds, args.synth_scenes,
+                                                                     args.max_clips)
     for fold in todo:
         outside = folds.training(names, fold)
 
@@ -244,7 +275,21 @@ def main(argv: Optional[List[str]] = None) -> int:
             run_stage(log, "fold %d classifier" % fold, os.path.join(runs, "cls", ".done"),
                       [PY, "training/train_cls.py", "--name", os.path.join(rel, "cls"), "--steps", str(args.cls_steps),
                        "--cache", cache, "--threads", str(args.threads), "--resume", "--synth"] + extra_cls, [cls])
-            exports.append(("cls", cls, "glad_classifier.onnx"))
+            first = os.path.join(runs, "cls", "first_step.onnx")
+            run_stage(log, "fold %d export the classifier's first step" % fold, os.path.join(runs, "cls", ".done-export"),
+                      [PY, "training/export.py", "cls", cls, first], [first], inputs=[cls])
+            # The second step as shipped (cls14 -> clsB): from the exported file, BatchNorm frozen, with the
+            # labelled thermal birds, airliners and helicopters of the other folds as hard negatives and the
+            # tiny light drones twice; nothing of this fold's clips.
+            *objects, light = tune_sets
+            tuned = os.path.join(runs, "cls_tuned", "last.pt")
+            run_stage(log, "fold %d classifier, second step" % fold, os.path.join(runs, "cls_tuned", ".done"),
+                      [PY, "training/train_cls.py", "--name", os.path.join(rel, "cls_tuned"), "--init", first,
+                       "--steps", str(args.cls_tune_steps), "--lr", "5e-4", "--cache", cache,
+                       "--threads", str(args.threads), "--resume", "--synth"] + extra_cls + [light, light]
+                      + ["--hard"] + [path for j, path in enumerate(objects) if j != fold] + ["--hard-frac", "0.25"],
+                      [tuned], inputs=[first])
+            exports.append(("cls", tuned, "glad_classifier.onnx"))
         for kind, ckpt, out in exports:
             target = os.path.join(models, out)
             run_stage(log, "fold %d export %s" % (fold, out), os.path.join(models, ".done-" + out),
