@@ -61,6 +61,23 @@ def test_more_scenes_are_mined_beside_the_first_without_touching_the_drone_free_
         assert "\n" not in str(e.value)
 
 
+def test_mining_some_folds_takes_only_their_scenes_and_the_rest_later_completes_the_shard():
+    folds = Folds({"k": 3, "block_size": 10, "kinds": {"V_DRONE": [[1, 10], [11, 20], [21, 999]]}})
+
+    def names(only, shard=0):
+        args = SimpleNamespace(synthetic_only=True, synthetic=6, synthetic_first=0, tiny_light=3, shard=shard,
+                               shards=2, scene_frames=150, folds=only)
+        return [name for name, _ in jobs(args, folds)]
+
+    first, rest = names([0, 1]), names([2])
+    assert first and rest
+    assert all(fold_of(folds, n) in (0, 1) for n in first) and all(fold_of(folds, n) == 2 for n in rest)
+    # together they are the shard, in its order: mining the last fold later leaves nothing out
+    whole = names(None)
+    assert sorted(first + rest) == sorted(whole) and len(whole) == len(set(whole))
+    assert not set(whole) & set(names(None, shard=1))
+
+
 def test_the_verifier_rule_may_cost_no_drone_group_more_than_the_limit():
     def fold(vis_cf, thermal_cf, false_pct):
         return {"visible drones": {"cF": vis_cf}, "thermal drones": {"cF": thermal_cf},

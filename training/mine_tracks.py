@@ -141,7 +141,8 @@ def check_synthetic_range(first: int, count: int) -> None:
                              DRONE_FREE_BENCH_SEEDS.stop - 1))
 
 
-def jobs(args):
+def jobs(args, folds=None):
+    """(name, frames) of the clips and scenes of ``args.shard``; with ``args.folds``, of those folds only."""
     out = []
     if not args.synthetic_only:
         for clip in halmstad_clips(args.data):
@@ -159,7 +160,10 @@ def jobs(args):
     # shuffled (a fixed order): a run stopped part-way still covers every kind and every fold evenly
     order = np.random.default_rng(0).permutation(len(out))
     out = [out[n] for n in order]
-    return [j for n, j in enumerate(out) if n % args.shards == args.shard]
+    out = [j for n, j in enumerate(out) if n % args.shards == args.shard]
+    if getattr(args, "folds", None) is not None:
+        out = [j for j in out if fold_of(folds, j[0]) in args.folds]
+    return out
 
 
 def main():
@@ -178,6 +182,8 @@ def main():
     ap.add_argument("--scene-frames", type=int, default=150)
     ap.add_argument("--fold-models", default=None, metavar="DIR",
                     help="run each clip with the networks of its fold: DIR/fold{k}/glad_*.onnx")
+    ap.add_argument("--folds", type=int, nargs="+", default=None, metavar="K",
+                    help="only the clips and scenes of these folds (e.g. while the other folds' networks still train)")
     args = ap.parse_args()
     check_synthetic_range(args.synthetic_first, args.synthetic)
     os.makedirs(args.out, exist_ok=True)
@@ -199,7 +205,7 @@ def main():
             "targets": det.detector.targets.model_copy(update={"max": 1})}))
 
     glads = {}
-    todo = jobs(args)
+    todo = jobs(args, folds)
     for n, (name, frames) in enumerate(todo):
         path = os.path.join(args.out, name + ".npz")
         if os.path.exists(path):
