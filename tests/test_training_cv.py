@@ -9,8 +9,7 @@ import pytest
 pytest.importorskip("torch")  # training/ needs the training environment
 
 from payload.eval.folds import Folds  # noqa: E402
-from training.cv_cls_thermal import hard_sets  # noqa: E402
-from training.cv_train import Log, run_stage, select  # noqa: E402
+from training.cv_train import Log, hard_sets, run_stage, select  # noqa: E402
 from training.mine_tracks import check_synthetic_range, fold_of, jobs  # noqa: E402
 from training.train_verifier import choose  # noqa: E402
 
@@ -46,7 +45,7 @@ def test_a_fold_is_mined_and_taught_only_by_what_never_saw_it():
 def test_more_scenes_are_mined_beside_the_first_without_touching_the_drone_free_bench():
     def names(first, count):
         args = SimpleNamespace(synthetic_only=True, synthetic=count, synthetic_first=first, tiny_light=0, shard=0,
-                               shards=1, scene_frames=150)
+                               shards=1, scene_frames=150, folds=None)
         return sorted(name for name, _ in jobs(args))
 
     assert names(0, 2) == ["SYN_DRONE_5000", "SYN_DRONE_5001", "SYN_EMPTY_6000", "SYN_EMPTY_6001"]
@@ -294,8 +293,8 @@ def test_a_folds_classifier_learns_nothing_of_the_folds_clips_in_either_step(tmp
     # each fold's objects are built from that fold's thermal negatives clips and nothing else
     objects = {}
     for name, argv in commands.items():
-        if name.startswith("common thermal objects of fold "):
-            fold = int(name.split()[5])
+        if name.startswith("thermal objects of fold "):
+            fold = int(name.split()[4])
             clips = argv[argv.index("--clips") + 1:]
             assert clips == [n for n in thermal_negatives if folds.fold_of(n) == fold]
             objects[fold] = argv[argv.index("--name") + 1]

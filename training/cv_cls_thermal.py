@@ -42,16 +42,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 sys.path.insert(0, REPO)
 from payload.eval.folds import clip_frames, load_folds  # noqa: E402
-from training.cv_train import PY, Log, run_stage, select  # noqa: E402
+from training.cv_train import PY, Log, hard_sets, run_stage, thermal_object_sets, tiny_light_set  # noqa: E402
 from training.halmstad import HALMSTAD  # noqa: E402
 
 SHIPPED = os.path.join(REPO, "payload", "models")
-
-
-def hard_sets(objects: List[str], target: str) -> List[str]:
-    """The thermal-object sets (one per fold, ``objects[j]`` from fold j's clips) that the classifier
-    of ``target`` ('0', '1', ... or 'all') may train on: every fold's but its own."""
-    return [path for j, path in enumerate(objects) if target == "all" or j != int(target)]
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -88,19 +82,9 @@ def main(argv: Optional[List[str]] = None) -> int:
               [PY, "training/mine_candidates.py", os.path.join(SHIPPED, "glad_local.onnx"), "--name", "mined1",
                "--scenes", "30", "--halmstad", "train", "negatives_train"], [synth[2]])
     if args.light:
-        light = os.path.join(cache, "synth_light_cls.npz")
-        run_stage(log, "tiny light drone patches", os.path.join(cache, ".done-synth_light"),
-                  [PY, "training/build_synth_cache.py", "--name", "synth_light", "--first-seed", "1300", "--scenes", "30",
-                   "--target-px", "2", "8", "--drone", "light", "--sky", "clear", "--in-sky", "--min-noise", "5"], [light])
+        light = tiny_light_set(log, cache, 30)
         synth = synth + (light, light)  # a few thousand patches among ~100,000: listed twice
-    objects = []
-    for fold in range(folds.k):
-        clips = [n for n in select(names, "IR", True) if folds.fold_of(n) == fold]
-        path = os.path.join(cache, "irobj%d_cls.npz" % fold)
-        run_stage(log, "thermal objects fold %d (%d clips)" % (fold, len(clips)), os.path.join(cache, ".done-irobj%d" % fold),
-                  [PY, "training/build_cache.py", "--split", "ir_negatives_train", "--objects", "--name",
-                   "irobj%d" % fold, "--clips"] + clips, [path])
-        objects.append(path)
+    objects = thermal_object_sets(log, cache, names, folds)
 
     for target in [str(k) for k in range(folds.k)] + ["all"]:
         hard = hard_sets(objects, target)

@@ -140,27 +140,36 @@ def select(names: Sequence[str], sensor: str, negatives: bool, limit: int = 0) -
     return picked[:limit] if limit else picked
 
 
-def classifier_tune_sets(log: Log, common: str, names: Sequence[str], folds, scenes: int,
-                         max_clips: int = 0) -> List[str]:
-    """The sets of the classifier's second step in the shipped recipe (MODEL_CARD, clsB), built once
-    for all folds: the labelled objects of the thermal negatives clips of each fold k
-    (irobj{k}_cls.npz, fold k's clips only) and the tiny light drones on a clear sky. Returns the
-    objects' paths, fold by fold, then the light drones' path."""
-    light = os.path.join(common, "synth_light_cls.npz")
-    run_stage(log, "common synth_light", os.path.join(common, ".done-synth_light"),
-              [PY, "training/build_synth_cache.py", "--cache", common, "--name", "synth_light", "--first-seed", "1300",
+def tiny_light_set(log: Log, cache: str, scenes: int) -> str:
+    """The tiny light drones on a clear sky (synth_light: seeds 1300+, 2-8 px, a patch a positive only
+    where the drone stands out by 5 noise units), for the classifier's second step; its path."""
+    light = os.path.join(cache, "synth_light_cls.npz")
+    run_stage(log, "tiny light drone patches", os.path.join(cache, ".done-synth_light"),
+              [PY, "training/build_synth_cache.py", "--cache", cache, "--name", "synth_light", "--first-seed", "1300",
                "--scenes", str(scenes), "--target-px", "2", "8", "--drone", "light", "--sky", "clear", "--in-sky",
                "--min-noise", "5"], [light])
+    return light
+
+
+def thermal_object_sets(log: Log, cache: str, names: Sequence[str], folds, max_clips: int = 0) -> List[str]:
+    """The labelled objects of the thermal negatives clips, one set per fold k from fold k's clips
+    only (irobj{k}_cls.npz), hard negatives for the classifier's second step; their paths, fold by fold."""
     objects = []
     for fold in range(folds.k):
         clips = [n for n in select(names, "IR", True, max_clips) if folds.fold_of(n) == fold]
-        path = os.path.join(common, "irobj%d_cls.npz" % fold)
-        run_stage(log, "common thermal objects of fold %d (%d clips)" % (fold, len(clips)),
-                  os.path.join(common, ".done-irobj%d" % fold),
-                  [PY, "training/build_cache.py", "--cache", common, "--split", "ir_negatives_train", "--objects",
+        path = os.path.join(cache, "irobj%d_cls.npz" % fold)
+        run_stage(log, "thermal objects of fold %d (%d clips)" % (fold, len(clips)),
+                  os.path.join(cache, ".done-irobj%d" % fold),
+                  [PY, "training/build_cache.py", "--cache", cache, "--split", "ir_negatives_train", "--objects",
                    "--name", "irobj%d" % fold, "--clips"] + clips, [path])
         objects.append(path)
-    return objects + [light]
+    return objects
+
+
+def hard_sets(objects: List[str], target: str) -> List[str]:
+    """The thermal-object sets (one per fold, ``objects[j]`` from fold j's clips) that the classifier
+    of ``target`` ('0', '1', ... or 'all') may train on: every fold's but its own."""
+    return [path for j, path in enumerate(objects) if target == "all" or j != int(target)]
 
 
 def given_classifier(root: str, fold: int) -> str:
@@ -219,8 +228,9 @@ def main(argv: Optional[List[str]] = None) -> int:
                    "--scenes", str(args.synth_scenes)] + extra,
                   [os.path.join(common, name + "_det.npz"), os.path.join(common, name + "_cls.npz")])
 
-    tune_sets = [] if args.classifier_from else classifier_tune_sets(log, common, names, folds, args.synth_scenes,
-                                                                     args.max_clips)
+    if not args.classifier_from:  # the classifier's second step: built once for every fold
+        light = tiny_light_set(log, common, args.synth_scenes)
+        objects = thermal_object_sets(log, common, names, folds, args.max_clips)
     for fold in todo:
         outside = folds.training(names, fold)
 
@@ -281,13 +291,12 @@ def main(argv: Optional[List[str]] = None) -> int:
             # The second step as shipped (cls14 -> clsB): from the exported file, BatchNorm frozen, with the
             # labelled thermal birds, airliners and helicopters of the other folds as hard negatives and the
             # tiny light drones twice; nothing of this fold's clips.
-            *objects, light = tune_sets
             tuned = os.path.join(runs, "cls_tuned", "last.pt")
             run_stage(log, "fold %d classifier, second step" % fold, os.path.join(runs, "cls_tuned", ".done"),
                       [PY, "training/train_cls.py", "--name", os.path.join(rel, "cls_tuned"), "--init", first,
                        "--steps", str(args.cls_tune_steps), "--lr", "5e-4", "--cache", cache,
                        "--threads", str(args.threads), "--resume", "--synth"] + extra_cls + [light, light]
-                      + ["--hard"] + [path for j, path in enumerate(objects) if j != fold] + ["--hard-frac", "0.25"],
+                      + ["--hard"] + hard_sets(objects, str(fold)) + ["--hard-frac", "0.25"],
                       [tuned], inputs=[first])
             exports.append(("cls", tuned, "glad_classifier.onnx"))
         for kind, ckpt, out in exports:

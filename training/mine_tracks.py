@@ -161,7 +161,7 @@ def jobs(args, folds=None):
     order = np.random.default_rng(0).permutation(len(out))
     out = [out[n] for n in order]
     out = [j for n, j in enumerate(out) if n % args.shards == args.shard]
-    if getattr(args, "folds", None) is not None:
+    if args.folds is not None:
         out = [j for j in out if fold_of(folds, j[0]) in args.folds]
     return out
 
