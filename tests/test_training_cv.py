@@ -11,7 +11,7 @@ pytest.importorskip("torch")  # training/ needs the training environment
 from payload.eval.folds import Folds  # noqa: E402
 from training.cv_train import Log, hard_sets, run_stage, select  # noqa: E402
 from training.mine_tracks import check_synthetic_range, fold_of, jobs  # noqa: E402
-from training.train_verifier import choose  # noqa: E402
+from training.train_verifier import choose, lockcheck, replay  # noqa: E402
 
 NAMES = ["V_DRONE_001", "V_DRONE_031", "IR_DRONE_001", "IR_DRONE_041", "V_BIRD_001", "V_AIRPLANE_031",
          "IR_BIRD_001", "IR_HELICOPTER_021"]
@@ -88,6 +88,42 @@ def test_the_verifier_rule_may_cost_no_drone_group_more_than_the_limit():
              "strict": [fold(0.99, 0.93, 1.0)]}
     assert choose(rules, 0.05)["rule"] == "gentle"
     assert choose(rules, 0.07)["rule"] == "strict"
+
+
+def test_a_stricter_lockcheck_replayed_on_loosely_mined_locks_confirms_and_drops_as_glad_would():
+    import numpy as np
+
+    from payload.detect.verify import FEATURES, N_FEATURES
+
+    measured, p = FEATURES.index("measured"), FEATURES.index("drone_p")
+    # lock 0: a doubted start, confirmed at its 4th hit, then a coasting frame (no hit: no verdict);
+    # lock 1: confirmed at once, then its hits fall until the hold drops it
+    hit = [1, 1, 1, 1, 0, 1, 1, 1, 1, 1]
+    prob = [0.9, 0.6, 0.9, 0.9, 0.0, 0.9, 0.9, 0.9, 0.05, 0.05]
+    rows = np.zeros((10, N_FEATURES), np.float32)
+    rows[:, measured], rows[:, p] = hit, prob
+    clip = {"rows": rows, "lock": np.array([0] * 6 + [1] * 4), "confirmed": np.ones(10, bool),
+            "box": np.tile(np.float32([[10, 10, 20, 20]]), (10, 1))}
+    clip["box"][7] = np.nan  # no box this frame: never reported
+    want = [False, False, False, True, True, True, False, True, True, False]
+    assert lockcheck(clip, 3, 0.5, 2, 0.8).tolist() == want
+    # the replay reports what that check passes (not what was mined) where there is a box
+    confirmed = lockcheck(clip, 3, 0.5, 2, 0.8)
+    got = replay(clip, None, 0, 0, 0, use_verifier=False, confirmed=confirmed)
+    assert got.tolist() == [w and i != 7 for i, w in enumerate(want)]
+    assert replay(clip, None, 0, 0, 0, use_verifier=False).sum() == 9  # as mined
+
+
+def test_train_verifier_refuses_a_malformed_lockcheck_naming_it(tmp_path):
+    import subprocess
+
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.run([sys.executable, os.path.join(repo, "training", "train_verifier.py"), "--tracks", str(tmp_path),
+                           "--out", str(tmp_path / "out"), "--lockcheck", "10:0.15:2:1.5"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert "10:0.15:2:1.5" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out").exists()
 
 
 def _write(path, text):

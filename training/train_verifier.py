@@ -231,9 +231,32 @@ def examples(clips):
 
 # --- replaying the rule and scoring -------------------------------------------------------------
 
-def replay(c, prob: np.ndarray, threshold: float, release: float, min_frames: int, use_verifier: bool = True) -> np.ndarray:
-    """Which rows GLAD reports: LockCheck confirmed, a box, and (with the verifier) verified."""
-    reported = c["confirmed"] & np.isfinite(c["box"]).all(1)
+def lockcheck(c, hits: int, threshold: float, confirm_hits: int, confirm_threshold: float) -> np.ndarray:
+    """Which rows a stricter LockCheck than the one mined with would report: payload's LockCheck fed
+    each lock's measured rows' drone probability, as GLAD feeds it every hit. A row counts once
+    its lock is confirmed and until the check drops the lock; GLAD would then search afresh, which
+    a replay cannot, so the rest of that lock is not reported (recall can only be underestimated)."""
+    from payload.detect.classifier import LockCheck
+
+    col_measured, col_p = FEATURES.index("measured"), FEATURES.index("drone_p")
+    check = LockCheck(hits, threshold, confirm_hits, confirm_threshold)
+    out = np.zeros(len(c["lock"]), bool)
+    alive = True
+    for i in range(len(out)):
+        if i == 0 or c["lock"][i] != c["lock"][i - 1]:
+            check.reset()
+            alive = True
+        if alive and c["rows"][i, col_measured] > 0:
+            alive = check.add(float(c["rows"][i, col_p]))
+        out[i] = alive and check.confirmed
+    return out
+
+
+def replay(c, prob: np.ndarray, threshold: float, release: float, min_frames: int, use_verifier: bool = True,
+           confirmed: np.ndarray = None) -> np.ndarray:
+    """Which rows GLAD reports: LockCheck confirmed (as mined, or ``confirmed``: ``lockcheck``), a
+    box, and (with the verifier) verified."""
+    reported = (c["confirmed"] if confirmed is None else confirmed) & np.isfinite(c["box"]).all(1)
     if not use_verifier:
         return reported
     pos = positions(c["lock"])
@@ -315,6 +338,17 @@ def export(net, path: str, window: int = WINDOW, n_in: int = N_FEATURES) -> None
                       dynamic_axes={"tracks": {0: "n"}, "drone_p": {0: "n"}}, dynamo=False)
 
 
+def lockcheck_rule(text: str):
+    """'10:0.15:2:0.8' -> (10, 0.15, 2, 0.8); argparse turns the ValueError into one line."""
+    parts = text.split(":")
+    if len(parts) != 4:
+        raise ValueError(text)
+    hits, threshold, confirm_hits, confirm_threshold = int(parts[0]), float(parts[1]), int(parts[2]), float(parts[3])
+    if hits < 0 or confirm_hits < 0 or not (0 <= threshold <= 1 and 0 <= confirm_threshold <= 1):
+        raise ValueError(text)
+    return hits, threshold, confirm_hits, confirm_threshold
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--tracks", default="training/cache/tracks")
@@ -329,6 +363,9 @@ def main(argv=None):
     ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
     ap.add_argument("--max-loss", type=float, default=0.05, help="centre-F each drone group may lose to the verifier")
     ap.add_argument("--look", action="store_true", help="append the look features of the target's patches")
+    ap.add_argument("--lockcheck", type=lockcheck_rule, nargs="+", default=None, metavar="H:T:CH:CT",
+                    help="replay these LockChecks (lock_hits:lock_threshold:confirm_hits:confirm_threshold) on "
+                         "locks mined with a looser one, instead of the mined confirmation")
     ap.add_argument("--export", default=None, help="also train on every clip and write this ONNX file")
     ap.add_argument("--export-folds", default=None, metavar="DIR",
                     help="write each fold's networks (the ones scored here) to DIR/fold{k}/glad_verifier.onnx, "
@@ -366,12 +403,16 @@ def main(argv=None):
     base = [score(fc, {c["name"]: replay(c, None, 0, 0, 0, use_verifier=False) for c in fc}) for fc in folds]
     print("\nLockCheck only (what GLAD reports today):\n" + fmt(base))
     report["rules"]["lockcheck"] = base
-    for mf in args.min_frames:
-        for th in args.thresholds:
-            rel = th - 0.2 if args.release is None else args.release
-            res = [score(fc, {c["name"]: replay(c, prob[c["name"]], th, rel, mf) for c in fc}) for fc in folds]
-            print("\nverifier min_frames %d threshold %.2f release %.2f:\n%s" % (mf, th, rel, fmt(res)))
-            report["rules"]["verifier mf%d th%.2f rel%.2f" % (mf, th, rel)] = res
+    for check in args.lockcheck or [None]:
+        confirmed = {c["name"]: None if check is None else lockcheck(c, *check) for c in clips}
+        prefix = "" if check is None else "lockcheck %d:%.2f:%d:%.2f " % check
+        for mf in args.min_frames:
+            for th in args.thresholds:
+                rel = th - 0.2 if args.release is None else args.release
+                res = [score(fc, {c["name"]: replay(c, prob[c["name"]], th, rel, mf, confirmed=confirmed[c["name"]])
+                                  for c in fc}) for fc in folds]
+                print("\n%sverifier min_frames %d threshold %.2f release %.2f:\n%s" % (prefix, mf, th, rel, fmt(res)))
+                report["rules"]["%sverifier mf%d th%.2f rel%.2f" % (prefix, mf, th, rel)] = res
     choice = choose(report["rules"], args.max_loss)
     report["choice"] = choice
     print("\nchosen (the fewest false targets, mean over folds and negative groups, among the rules that lose at most "
