@@ -11,7 +11,7 @@ pytest.importorskip("torch")  # training/ needs the training environment
 from payload.eval.folds import Folds  # noqa: E402
 from training.cv_train import Log, hard_sets, run_stage, select  # noqa: E402
 from training.mine_tracks import check_synthetic_range, fold_of, jobs  # noqa: E402
-from training.train_verifier import choose, lockcheck, replay  # noqa: E402
+from training.train_verifier import choose, choose_within, lockcheck, replay  # noqa: E402
 
 NAMES = ["V_DRONE_001", "V_DRONE_031", "IR_DRONE_001", "IR_DRONE_041", "V_BIRD_001", "V_AIRPLANE_031",
          "IR_BIRD_001", "IR_HELICOPTER_021"]
@@ -88,6 +88,27 @@ def test_the_verifier_rule_may_cost_no_drone_group_more_than_the_limit():
              "strict": [fold(0.99, 0.93, 1.0)]}
     assert choose(rules, 0.05)["rule"] == "gentle"
     assert choose(rules, 0.07)["rule"] == "strict"
+
+
+def test_within_the_false_target_bar_the_rule_finding_most_drones_is_chosen():
+    def fold(vis_f, thermal_f, vis_false, thermal_false, empty=0.5):
+        return {"visible drones": {"F": vis_f}, "thermal drones": {"F": thermal_f},
+                "visible negatives": {"target%": vis_false}, "thermal negatives": {"target%": thermal_false},
+                "synthetic empty": {"target%": empty}}
+
+    bar = {"visible negatives": 3.0, "thermal negatives": 3.0, "synthetic empty": 2.0}
+    rules = {"lockcheck": [fold(0.85, 0.90, 50.0, 30.0)],
+             "loose": [fold(0.75, 0.86, 3.5, 1.0)],  # visible over the bar
+             "strict": [fold(0.66, 0.82, 2.0, 0.5)],
+             "middle": [fold(0.70, 0.84, 2.9, 2.9)],
+             # within on the real negatives, over on the drone-free synthetic scenes
+             "blind": [fold(0.74, 0.85, 2.0, 2.0, empty=2.5)]}
+    assert choose_within(rules, bar)["rule"] == "middle"
+    # per fold means: one fold over the bar does not refuse a rule whose mean is within it
+    rules["split"] = [fold(0.72, 0.85, 4.0, 1.0), fold(0.72, 0.85, 1.8, 1.0)]
+    assert choose_within(rules, bar)["rule"] == "split"
+    with pytest.raises(SystemExit, match="no rule"):
+        choose_within({"lockcheck": rules["lockcheck"]}, bar)
 
 
 def test_a_stricter_lockcheck_replayed_on_loosely_mined_locks_confirms_and_drops_as_glad_would():

@@ -329,6 +329,29 @@ def choose(rules: Dict[str, List], max_loss: float) -> Dict:
     return dict(best, lockcheck_drone_cF=_mean(rules["lockcheck"], drones, "cF"))
 
 
+def choose_within(rules: Dict[str, List], max_false_pct: Dict[str, float]) -> Dict:
+    """The rule with the highest mean F (IoU 0.5) over the real drone groups among those whose frames
+    with a false target stay within ``max_false_pct`` on every negative group named there, each group
+    on its mean over the folds (issue 16's bar: 3 % visible and thermal, 2 % drone-free synthetic).
+    For locks mined with a loose LockCheck, where LockCheck alone reports nearly every lock and so is
+    no baseline to lose centre-F against."""
+    drones = ("visible drones", "thermal drones")
+    table = []
+    for name, per_fold in rules.items():
+        false = {g: _mean(per_fold, [g], "target%") for g in max_false_pct}
+        ok = all(false[g] <= limit for g, limit in max_false_pct.items())
+        table.append(dict(rule=name, drone_F=_mean(per_fold, drones, "F"), ok=ok,
+                          **{"false_%s_pct" % g.split()[0]: v for g, v in false.items()}))
+    for row in table:
+        print("  %-60s drone F %.3f  false targets %s%s" % (
+            row["rule"], row["drone_F"], " / ".join("%.2f %%" % v for k, v in row.items() if k.startswith("false_")),
+            "" if row["ok"] else "  (over the bar)"))
+    passing = [r for r in table if r["ok"]]
+    if not passing:
+        raise SystemExit("no rule keeps the false targets within %s" % max_false_pct)
+    return max(passing, key=lambda r: r["drone_F"])
+
+
 def export(net, path: str, window: int = WINDOW, n_in: int = N_FEATURES) -> None:
     """The ONNX file GLAD loads; its input's T is the window the verifier keeps at run time."""
     import torch
@@ -362,6 +385,10 @@ def main(argv=None):
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
     ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
     ap.add_argument("--max-loss", type=float, default=0.05, help="centre-F each drone group may lose to the verifier")
+    ap.add_argument("--max-false-target", type=float, default=None, metavar="PCT",
+                    help="choose instead the rule with the highest drone F among those with at most PCT %% frames "
+                         "with a false target on the visible and on the thermal negatives (2 %% at most on "
+                         "drone-free synthetic scenes): for locks mined with a loose LockCheck")
     ap.add_argument("--look", action="store_true", help="append the look features of the target's patches")
     ap.add_argument("--lockcheck", type=lockcheck_rule, nargs="+", default=None, metavar="H:T:CH:CT",
                     help="replay these LockChecks (lock_hits:lock_threshold:confirm_hits:confirm_threshold) on "
@@ -413,10 +440,17 @@ def main(argv=None):
                                   for c in fc}) for fc in folds]
                 print("\n%sverifier min_frames %d threshold %.2f release %.2f:\n%s" % (prefix, mf, th, rel, fmt(res)))
                 report["rules"]["%sverifier mf%d th%.2f rel%.2f" % (prefix, mf, th, rel)] = res
-    choice = choose(report["rules"], args.max_loss)
+    if args.max_false_target is None:
+        choice = choose(report["rules"], args.max_loss)
+        print("\nchosen (the fewest false targets, mean over folds and negative groups, among the rules that lose at "
+              "most %.2f centre-F on any drone group against LockCheck only): %s" % (args.max_loss, choice))
+    else:
+        bar = {"visible negatives": args.max_false_target, "thermal negatives": args.max_false_target,
+               "synthetic empty": min(2.0, args.max_false_target)}
+        choice = choose_within(report["rules"], bar)
+        print("\nchosen (the highest mean drone F among the rules with at most %s frames with a false target, "
+              "each negative group's mean over the folds): %s" % (bar, choice))
     report["choice"] = choice
-    print("\nchosen (the fewest false targets, mean over folds and negative groups, among the rules that lose at most "
-          "%.2f centre-F on any drone group against LockCheck only): %s" % (args.max_loss, choice))
     with open(os.path.join(args.out, "cv.json"), "w") as f:
         json.dump(report, f, indent=1)
     np.savez_compressed(os.path.join(args.out, "oof_prob.npz"), **prob)
