@@ -214,6 +214,44 @@ def test_the_shipped_verifier_is_its_members_averaged_and_loads_as_one(tmp_path)
     assert abs(verifier.probability - float(each.mean(0)[0, 0])) < 1e-4
 
 
+def test_a_views_network_never_sees_the_evidence_it_was_trained_without(tmp_path):
+    """Each view's networks (train_verifier VIEWS) are trained with some columns zeroed; the shipped
+    ensemble must zero them at run time too, or a network would meet values it never saw."""
+    import numpy as np
+    import torch
+
+    from payload.detect.onnx_model import OnnxModel
+    from payload.detect.verify import LOOK_FEATURES, N_FEATURES, LockVerifier
+    from training.train_verifier import VIEWS, WINDOW, build_net, ensemble, export, masked, view_keep
+
+    n_in = N_FEATURES + len(LOOK_FEATURES)
+    torch.manual_seed(0)
+    nets = {view: masked(build_net(np.zeros(n_in, np.float32), np.ones(n_in, np.float32)).eval(), view_keep(view, n_in))
+            for view in ("all", "look", "motion")}
+    x = torch.rand(4, WINDOW, n_in)
+    x[:, :, 0] = 1.0
+    for view, net in nets.items():
+        keep = torch.from_numpy(view_keep(view, n_in))
+        assert int((keep == 0).sum()) == len(VIEWS[view])
+        other = x.clone()
+        other[:, :, keep == 0] = torch.rand(int((keep == 0).sum()))  # only what the view is without differs
+        with torch.no_grad():
+            assert torch.allclose(net(x), net(other), atol=1e-7), view
+            changed = x.clone()
+            changed[:, :, keep == 1] += 1.0
+            assert not torch.allclose(net(x), net(changed)), view  # and it does see the rest
+    net = ensemble(list(nets.values()))
+    path = str(tmp_path / "views.onnx")
+    export(net, path, WINDOW, n_in)
+    verifier = LockVerifier(OnnxModel(path, expected_inputs={"tracks": (None, None, None)}), min_frames=1,
+                            threshold=0.5, release_threshold=0.3)
+    for row in x[0].numpy():
+        verifier.add(row)
+    with torch.no_grad():
+        want = float(torch.stack([m(x[:1]) for m in nets.values()]).mean())
+    assert abs(verifier.probability - want) < 1e-5
+
+
 def test_a_verifier_exported_for_a_longer_window_is_run_on_that_window(tmp_path):
     import numpy as np
     import torch
@@ -240,7 +278,8 @@ def test_a_verifier_exported_for_a_longer_window_is_run_on_that_window(tmp_path)
 
 
 @pytest.mark.parametrize("flag, value, expected", [("--members", "0", "--members 0: expected at least 1 network"),
-                                                   ("--window", "3", "--window 3: expected at least 4")])
+                                                   ("--window", "3", "--window 3: expected at least 4"),
+                                                   ("--views", "look", "--views look: the rows have no look_log_area")])
 def test_train_verifier_refuses_a_bad_count_in_one_line(tmp_path, flag, value, expected):
     import subprocess
 
@@ -273,9 +312,11 @@ def _fake_tracks(root, names, n=40, seed=0):
                  confirmed=np.ones(n, bool), frames=n, gt_frames=n if drone else 0)
 
 
-def test_each_folds_verifier_is_exported_as_scored(tmp_path):
+@pytest.mark.parametrize("views", [[], ["--views", "all", "size", "motion"]])
+def test_each_folds_verifier_is_exported_as_scored(tmp_path, views):
     """--export-folds writes the very networks whose held-out probabilities the cross-validation
-    scored, so that glad-payload cv --fold-models runs a verifier that never saw the fold."""
+    scored, so that glad-payload cv --fold-models runs a verifier that never saw the fold; with
+    --views too, each view's networks fed their view of the rows inside the one file."""
     import numpy as np
 
     from payload.detect.onnx_model import OnnxModel
@@ -286,7 +327,7 @@ def test_each_folds_verifier_is_exported_as_scored(tmp_path):
     _fake_tracks(tmp_path / "tracks", names)
     out, models = tmp_path / "run", tmp_path / "models"
     train_verifier(["--tracks", str(tmp_path / "tracks"), "--out", str(out), "--steps", "30", "--members", "2",
-                    "--min-frames", "4", "--thresholds", "0.5", "--export-folds", str(models)])
+                    "--min-frames", "4", "--thresholds", "0.5", "--export-folds", str(models)] + views)
     oof = np.load(str(out / "oof_prob.npz"))
     assert sorted(os.listdir(str(models))) == ["fold0", "fold1", "fold2"]
 

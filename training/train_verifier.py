@@ -146,6 +146,48 @@ def build_net(mean: np.ndarray, std: np.ndarray):
     return Verifier()
 
 
+#: The views of a lock the ensemble's networks are trained on: each network but the first misses one
+#: kind of evidence (its columns zeroed in training and at run time). A lock is believed when networks
+#: that judge it from different evidence agree: on sessions never seen, one kind of evidence can be
+#: sure and wrong (the look features call a distant hovering helicopter a drone, the classifier's
+#: verdict calls one session's drones birds), and the mean over views damps that one voice.
+VIEWS = {
+    "all": (),
+    "ego": ("log_ego_px", "motion_valid"),
+    "surroundings": ("contrast", "log_std_in", "log_std_ring"),
+    "size": ("log2_w", "log2_h"),
+    "module": ("measured", "gad", "gmd", "lad", "lmd", "score"),
+    "look": LOOK_FEATURES,
+    "motion": ("rel_dx", "rel_dy", "log_rel_px"),
+}
+
+
+def view_keep(view: str, n_in: int) -> np.ndarray:
+    """[n_in] 1 for the columns the view's networks see, 0 for those it is trained without."""
+    names = (list(FEATURES) + list(LOOK_FEATURES))[:n_in]
+    missing = [f for f in VIEWS[view] if f not in names]
+    if missing:
+        raise SystemExit("--views %s: the rows have no %s (the look view needs --look)" % (view, ", ".join(missing)))
+    return np.array([0.0 if f in VIEWS[view] else 1.0 for f in names], np.float32)
+
+
+def masked(net, keep: np.ndarray):
+    """``net`` fed its view of the rows: the columns ``keep`` zeroes are zero, as in its training."""
+    import torch
+    from torch import nn
+
+    class Masked(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.net = net
+            self.register_buffer("keep", torch.tensor(keep, dtype=torch.float32))
+
+        def forward(self, tracks):
+            return self.net(tracks * self.keep)
+
+    return Masked().eval()
+
+
 def ensemble(nets):
     """One network that answers the mean of ``nets``' probabilities (what ships)."""
     from torch import nn
@@ -161,9 +203,16 @@ def ensemble(nets):
     return Ensemble().eval()
 
 
-def train_members(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, members: int):
-    """``members`` networks, each from its own seed (initialisation and draws), as one."""
-    return ensemble([train(x, y, w, steps, seed + 1000 * m, log_every=0) for m in range(members)])
+def train_members(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, members: int,
+                  views=("all",)):
+    """``members`` networks of each view (VIEWS), each from its own seed (initialisation and draws),
+    as one that answers their mean."""
+    nets = []
+    for v, view in enumerate(views):
+        keep = view_keep(view, x.shape[2])
+        xv = x if keep.all() else x * keep
+        nets += [masked(train(xv, y, w, steps, seed + 1000 * m + 10000 * v, log_every=0), keep) for m in range(members)]
+    return ensemble(nets)
 
 
 def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, log_every: int = 500):
@@ -381,6 +430,9 @@ def main(argv=None):
     ap.add_argument("--members", type=int, default=5,
                     help="networks averaged (the shipped verifier's 5: docs/results.md, 2026-12-04)")
     ap.add_argument("--window", type=int, default=WINDOW, help="frames of a lock the network sees (the last T)")
+    ap.add_argument("--views", nargs="+", choices=sorted(VIEWS), default=["all"],
+                    help="train --members networks on each of these views of the rows (VIEWS: 'all' sees every "
+                         "column, each other one misses that kind of evidence) and average them all")
     ap.add_argument("--min-frames", type=int, nargs="+", default=[4, 8, 12])
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
     ap.add_argument("--release", type=float, default=None, help="release threshold; default threshold - 0.2")
@@ -402,6 +454,8 @@ def main(argv=None):
         raise SystemExit("--members %d: expected at least 1 network" % args.members)
     if args.window < 4:
         raise SystemExit("--window %d: expected at least 4 (a lock is judged from its 4th frame)" % args.window)
+    for view in args.views:  # refused before anything is read or written
+        view_keep(view, N_FEATURES + (len(LOOK_FEATURES) if args.look else 0))
     import torch
 
     torch.set_num_threads(1)
@@ -415,7 +469,7 @@ def main(argv=None):
         train_clips = [c for c in clips if c["fold"] != fold]
         x, y, w = examples(train_clips)
         print("fold %d: %d examples (%d drone)" % (fold, len(y), int(y.sum())), flush=True)
-        net = train_members(x, y, w, args.steps, args.seed + fold, args.members)
+        net = train_members(x, y, w, args.steps, args.seed + fold, args.members, args.views)
         for c in clips:
             if c["fold"] == fold:
                 prob[c["name"]] = predict(net, c["windows"])
@@ -426,7 +480,7 @@ def main(argv=None):
             print("wrote %s" % path, flush=True)
     folds = [[c for c in clips if c["fold"] == f] for f in range(k)]
     report = {"features": list(FEATURES) + (list(LOOK_FEATURES) if args.look else []), "window": args.window,
-              "steps": args.steps, "members": args.members, "rules": {}}
+              "steps": args.steps, "members": args.members, "views": args.views, "rules": {}}
     base = [score(fc, {c["name"]: replay(c, None, 0, 0, 0, use_verifier=False) for c in fc}) for fc in folds]
     print("\nLockCheck only (what GLAD reports today):\n" + fmt(base))
     report["rules"]["lockcheck"] = base
@@ -456,7 +510,7 @@ def main(argv=None):
     np.savez_compressed(os.path.join(args.out, "oof_prob.npz"), **prob)
     if args.export:
         x, y, w = examples(clips)
-        net = train_members(x, y, w, args.steps, args.seed + 100, args.members)
+        net = train_members(x, y, w, args.steps, args.seed + 100, args.members, args.views)
         export(net, args.export, args.window, clips[0]["rows"].shape[1])
         print("wrote %s" % args.export)
     print("done in %.0f s" % (time.time() - t0))
