@@ -280,7 +280,7 @@ def test_a_verifier_exported_for_a_longer_window_is_run_on_that_window(tmp_path)
 @pytest.mark.parametrize("flag, value, expected", [("--members", "0", "--members 0: expected at least 1 network"),
                                                    ("--window", "3", "--window 3: expected at least 4"),
                                                    ("--views", "look", "--views look: the rows have no look_log_area")])
-def test_train_verifier_refuses_a_bad_count_in_one_line(tmp_path, flag, value, expected):
+def test_train_verifier_refuses_a_bad_argument_in_one_line(tmp_path, flag, value, expected):
     import subprocess
 
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -210,8 +210,11 @@ def train_members(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed:
     nets = []
     for v, view in enumerate(views):
         keep = view_keep(view, x.shape[2])
-        xv = x if keep.all() else x * keep
-        nets += [masked(train(xv, y, w, steps, seed + 1000 * m + 10000 * v, log_every=0), keep) for m in range(members)]
+        whole = bool(keep.all())  # the view of every column needs no mask, in training or in the file
+        xv = x if whole else x * keep
+        for m in range(members):
+            net = train(xv, y, w, steps, seed + 1000 * m + 10000 * v, log_every=0)
+            nets.append(net if whole else masked(net, keep))
     return ensemble(nets)
 
 
