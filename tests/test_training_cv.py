@@ -350,6 +350,46 @@ def test_each_folds_verifier_is_exported_as_scored(tmp_path, views):
     assert max(probs) - min(probs) > 1e-4
 
 
+def test_a_second_mining_is_learned_and_the_first_is_scored(tmp_path):
+    """--tracks A B: the networks learn the locks of both minings (the same clips as other detectors
+    locked them), the cross-validation scores A's. B here says the opposite of A, so learning it
+    must pull A's held-out drone probabilities down; an empty mining is refused in one line."""
+    import numpy as np
+
+    from training.train_verifier import main as train_verifier
+
+    names = ["V_DRONE_001", "V_DRONE_040", "V_DRONE_080", "V_BIRD_001", "V_BIRD_020", "V_BIRD_040"]
+    _fake_tracks(tmp_path / "a", names)
+    _fake_tracks(tmp_path / "b", names, seed=1)
+    for name in names:  # B: the signal reversed
+        path = str(tmp_path / "b" / (name + ".npz"))
+        with np.load(path) as z:
+            d = {k: z[k] for k in z.files}
+        d["rows"][:, 1] = -d["rows"][:, 1]
+        np.savez(path, **d)
+
+    def drone_oof(*minings):
+        out = tmp_path / ("run%d" % len(minings))
+        train_verifier(["--tracks"] + [str(tmp_path / m) for m in minings] + ["--out", str(out), "--steps", "60",
+                       "--members", "1", "--min-frames", "4", "--thresholds", "0.5"])
+        oof = np.load(str(out / "oof_prob.npz"))
+        assert sorted(oof.files) == sorted(names)
+        return float(np.mean([oof[n].mean() for n in names if "_DRONE_" in n]))
+
+    alone, both = drone_oof("a"), drone_oof("a", "b")
+    assert alone > 0.8 and both < alone - 0.2, (alone, both)
+    (tmp_path / "empty").mkdir()
+    import subprocess
+
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.run([sys.executable, os.path.join(repo, "training", "train_verifier.py"), "--tracks",
+                           str(tmp_path / "a"), str(tmp_path / "empty"), "--out", str(tmp_path / "run")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(tmp_path / "empty") in lines[0] and "no mined locks" in lines[0], proc.stderr
+
+
 def test_a_classifier_from_another_run_replaces_the_classifier_stage(tmp_path, monkeypatch, capsys):
     import training.cv_train as cv_train
 

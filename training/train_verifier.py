@@ -426,7 +426,8 @@ def lockcheck_rule(text: str):
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
-    ap.add_argument("--tracks", default="training/cache/tracks")
+    ap.add_argument("--tracks", nargs="+", default=["training/cache/tracks"], metavar="DIR",
+                    help="mined locks (training/mine_tracks.py); with several, the networks learn the locks of all of them (the same clips as other detectors locked them) and the cross-validation scores the first's")
     ap.add_argument("--out", default="training/runs/verifier")
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=0)
@@ -464,12 +465,17 @@ def main(argv=None):
     torch.set_num_threads(1)
     os.makedirs(args.out, exist_ok=True)
     t0 = time.time()
-    clips = load(args.tracks, args.window, args.look)
-    print("clips %d, lock frames %d (%.0f s)" % (len(clips), sum(len(c["rows"]) for c in clips), time.time() - t0))
+    minings = [load(d, args.window, args.look) for d in args.tracks]
+    for d, m in zip(args.tracks, minings):
+        if not m:
+            raise SystemExit("--tracks %s: no mined locks (<clip>.npz from training/mine_tracks.py) there" % d)
+    clips, learned = minings[0], [c for m in minings for c in m]
+    print("clips %d, lock frames %d, learned from %d minings (%.0f s)"
+          % (len(clips), sum(len(c["rows"]) for c in clips), len(minings), time.time() - t0))
     k = max(c["fold"] for c in clips) + 1
     prob = {}
     for fold in range(k):
-        train_clips = [c for c in clips if c["fold"] != fold]
+        train_clips = [c for c in learned if c["fold"] != fold]
         x, y, w = examples(train_clips)
         print("fold %d: %d examples (%d drone)" % (fold, len(y), int(y.sum())), flush=True)
         net = train_members(x, y, w, args.steps, args.seed + fold, args.members, args.views)
@@ -512,7 +518,7 @@ def main(argv=None):
         json.dump(report, f, indent=1)
     np.savez_compressed(os.path.join(args.out, "oof_prob.npz"), **prob)
     if args.export:
-        x, y, w = examples(clips)
+        x, y, w = examples(learned)
         net = train_members(x, y, w, args.steps, args.seed + 100, args.members, args.views)
         export(net, args.export, args.window, clips[0]["rows"].shape[1])
         print("wrote %s" % args.export)
