@@ -350,6 +350,52 @@ def test_each_folds_verifier_is_exported_as_scored(tmp_path, views):
     assert max(probs) - min(probs) > 1e-4
 
 
+def test_an_excursion_strays_inside_a_drone_window_and_comes_back():
+    """--excursions: a drone window gets one or two rows of a not-drone window inside it (never its
+    first present row nor its current one), the lock jumping 3-10 box sizes there and back; not-drone
+    windows and the rest of the rows stay as they were."""
+    import numpy as np
+
+    from payload.detect.verify import FEATURES, N_FEATURES
+    from training.train_verifier import excursions
+
+    rng = np.random.default_rng(0)
+    n, T = 64, 32
+    xb = np.zeros((n, T, N_FEATURES), np.float32)
+    present = rng.integers(4, T + 1, size=n)
+    for i in range(n):
+        xb[i, T - present[i]:] = rng.normal(0.0, 0.3, size=(present[i], N_FEATURES))
+        xb[i, T - present[i]:, 0] = 1.0
+        xb[i, T - present[i]:, FEATURES.index("log2_w")] = 3.0
+        xb[i, T - present[i]:, FEATURES.index("log2_h")] = 3.0
+    yb = (np.arange(n) % 2).astype(np.float32)
+    out = excursions(xb, yb, rng, 1.0)
+    dx, dy = FEATURES.index("rel_dx"), FEATURES.index("rel_dy")
+    assert np.array_equal(out[yb == 0], xb[yb == 0])
+    motion = [FEATURES.index(f) for f in ("rel_dx", "rel_dy", "log_rel_px")]
+    # the current row is the drone's (at most it is the row that comes back)
+    assert np.array_equal(np.delete(out[:, -1], motion, axis=1), np.delete(xb[:, -1], motion, axis=1))
+    strayed = 0
+    for i in np.nonzero(yb == 1)[0]:
+        changed = np.nonzero((out[i] != xb[i]).any(1))[0]
+        if not len(changed):
+            continue
+        strayed += 1
+        first = T - present[i]
+        assert changed.min() > first and changed[-2] < T - 1, (i, changed)
+        assert 2 <= len(changed) <= 3  # one or two stray rows and the row that comes back
+        jump_in = np.hypot(out[i, changed[0], dx], out[i, changed[0], dy])
+        back = out[i, changed[-1], [dx, dy]]
+        assert 3.0 <= jump_in <= 10.0
+        assert np.allclose(back, -out[i, changed[0], [dx, dy]])
+        # the stray rows are a not-drone window's rows (apart from the jump)
+        stray = np.delete(out[i, changed[:-1]], motion, axis=1)
+        pool = np.delete(xb[yb == 0].reshape(-1, N_FEATURES), motion, axis=1)
+        assert all((np.abs(pool - r).max(1) < 1e-6).any() for r in stray)
+    assert strayed >= 0.8 * (yb == 1).sum()
+    assert np.array_equal(excursions(xb, yb, rng, 0.0), xb)
+
+
 def test_a_second_mining_is_learned_and_the_first_is_scored(tmp_path):
     """--tracks A B: the networks learn the locks of both minings (the same clips as other detectors
     locked them), the cross-validation scores A's. B here says the opposite of A, so learning it

@@ -204,7 +204,7 @@ def ensemble(nets):
 
 
 def train_members(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, members: int,
-                  views=("all",)):
+                  views=("all",), excursion: float = 0.0):
     """``members`` networks of each view (VIEWS), each from its own seed (initialisation and draws),
     as one that answers their mean."""
     nets = []
@@ -213,12 +213,52 @@ def train_members(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed:
         whole = bool(keep.all())  # the view of every column needs no mask, in training or in the file
         xv = x if whole else x * keep
         for m in range(members):
-            net = train(xv, y, w, steps, seed + 1000 * m + 10000 * v, log_every=0)
+            net = train(xv, y, w, steps, seed + 1000 * m + 10000 * v, log_every=0, excursion=excursion,
+                        columns=None if whole else keep)
             nets.append(net if whole else masked(net, keep))
     return ensemble(nets)
 
 
-def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, log_every: int = 500):
+def excursions(xb: np.ndarray, yb: np.ndarray, rng, frac: float) -> np.ndarray:
+    """``frac`` of the drone windows in a batch [N, T, F] get a brief excursion: one or two rows inside
+    the window (never its first or its current row) taken from a not-drone window of the batch, the
+    lock jumping 3-10 box sizes there and back. A follow that strays onto clutter for a frame and
+    comes back is still on the drone; without this the verifier learns from the drone-free scenes,
+    where locks jump all the time, that one jump anywhere in the window means no drone, and a drone
+    found again after a stray frame stays unbelieved until the stray rows leave the window."""
+    out = xb.copy()
+    neg = np.nonzero(yb == 0)[0]
+    if frac <= 0 or not len(neg):
+        return out
+    T = xb.shape[1]
+    for i in np.nonzero((yb == 1) & (rng.random(len(yb)) < frac))[0]:
+        n = int((xb[i, :, 0] > 0).sum())
+        if n < 4:
+            continue
+        length = int(rng.integers(1, 3))
+        t = int(rng.integers(T - n + 1, T - length))  # rows t .. t+length-1 stray; row t+length comes back
+        j = int(rng.choice(neg))
+        foreign = xb[j][xb[j, :, 0] > 0][-length:]
+        if len(foreign) < length:
+            continue
+        out[i, t:t + length] = foreign
+        angle = rng.uniform(0.0, 2.0 * np.pi)
+        jump = rng.uniform(3.0, 10.0) * np.array([np.cos(angle), np.sin(angle)], np.float32)
+        for row, d in ((t, jump), (t + length, -jump)):
+            size_px = 2.0 ** (0.5 * (out[i, row, _LOG2_W] + out[i, row, _LOG2_H]))
+            out[i, row, _REL_DX], out[i, row, _REL_DY] = d
+            out[i, row, _LOG_REL_PX] = np.log1p(float(np.hypot(*d)) * size_px)
+    return out
+
+
+_REL_DX, _REL_DY, _LOG_REL_PX = FEATURES.index("rel_dx"), FEATURES.index("rel_dy"), FEATURES.index("log_rel_px")
+_LOG2_W, _LOG2_H = FEATURES.index("log2_w"), FEATURES.index("log2_h")
+
+
+def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, log_every: int = 500,
+          excursion: float = 0.0, columns: Optional[np.ndarray] = None):
+    """One network. ``excursion``: the share of drone windows given a stray frame or two (``excursions``);
+    ``columns``: the view's (view_keep), the others stay zero after that."""
     import torch
 
     torch.manual_seed(seed)
@@ -235,6 +275,9 @@ def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, lo
     for step in range(steps):
         idx = torch.from_numpy(rng.choice(len(x), 256, p=p))
         xb = xt[idx]
+        if excursion > 0:
+            xb = excursions(xb.numpy(), y[idx.numpy()], rng, excursion)
+            xb = torch.from_numpy(xb if columns is None else xb * columns)
         # drop the oldest frames at random: the verifier must judge young locks too
         window = xb.shape[1]
         keep = torch.from_numpy(rng.integers(4, window + 1, size=len(idx)))
@@ -445,6 +488,8 @@ def main(argv=None):
                     help="choose instead the rule with the highest drone F among those with at most PCT %% frames "
                          "with a false target on the visible and on the thermal negatives (2 %% at most on "
                          "drone-free synthetic scenes): for locks mined with a loose LockCheck")
+    ap.add_argument("--excursions", type=float, default=0.0, metavar="FRAC",
+                    help="give this share of the drone windows a stray frame or two in training (excursions())")
     ap.add_argument("--look", action="store_true", help="append the look features of the target's patches")
     ap.add_argument("--lockcheck", type=lockcheck_rule, nargs="+", default=None, metavar="H:T:CH:CT",
                     help="replay these LockChecks (lock_hits:lock_threshold:confirm_hits:confirm_threshold) on "
@@ -456,6 +501,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.members < 1:
         raise SystemExit("--members %d: expected at least 1 network" % args.members)
+    if not 0.0 <= args.excursions <= 1.0:
+        raise SystemExit("--excursions %g: expected a share of the drone windows, 0 to 1" % args.excursions)
     if args.window < 4:
         raise SystemExit("--window %d: expected at least 4 (a lock is judged from its 4th frame)" % args.window)
     for view in args.views:  # refused before anything is read or written
@@ -478,7 +525,7 @@ def main(argv=None):
         train_clips = [c for c in learned if c["fold"] != fold]
         x, y, w = examples(train_clips)
         print("fold %d: %d examples (%d drone)" % (fold, len(y), int(y.sum())), flush=True)
-        net = train_members(x, y, w, args.steps, args.seed + fold, args.members, args.views)
+        net = train_members(x, y, w, args.steps, args.seed + fold, args.members, args.views, args.excursions)
         for c in clips:
             if c["fold"] == fold:
                 prob[c["name"]] = predict(net, c["windows"])
@@ -489,7 +536,8 @@ def main(argv=None):
             print("wrote %s" % path, flush=True)
     folds = [[c for c in clips if c["fold"] == f] for f in range(k)]
     report = {"features": list(FEATURES) + (list(LOOK_FEATURES) if args.look else []), "window": args.window,
-              "steps": args.steps, "members": args.members, "views": args.views, "rules": {}}
+              "steps": args.steps, "members": args.members, "views": args.views,
+              "excursions": args.excursions, "rules": {}}
     base = [score(fc, {c["name"]: replay(c, None, 0, 0, 0, use_verifier=False) for c in fc}) for fc in folds]
     print("\nLockCheck only (what GLAD reports today):\n" + fmt(base))
     report["rules"]["lockcheck"] = base
@@ -519,7 +567,7 @@ def main(argv=None):
     np.savez_compressed(os.path.join(args.out, "oof_prob.npz"), **prob)
     if args.export:
         x, y, w = examples(learned)
-        net = train_members(x, y, w, args.steps, args.seed + 100, args.members, args.views)
+        net = train_members(x, y, w, args.steps, args.seed + 100, args.members, args.views, args.excursions)
         export(net, args.export, args.window, clips[0]["rows"].shape[1])
         print("wrote %s" % args.export)
     print("done in %.0f s" % (time.time() - t0))
