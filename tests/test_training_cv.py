@@ -400,6 +400,8 @@ def test_a_second_mining_is_learned_and_the_first_is_scored(tmp_path):
     """--tracks A B: the networks learn the locks of both minings (the same clips as other detectors
     locked them), the cross-validation scores A's. B here says the opposite of A, so learning it
     must pull A's held-out drone probabilities down; an empty mining is refused in one line."""
+    import subprocess
+
     import numpy as np
 
     from training.train_verifier import main as train_verifier
@@ -425,8 +427,6 @@ def test_a_second_mining_is_learned_and_the_first_is_scored(tmp_path):
     alone, both = drone_oof("a"), drone_oof("a", "b")
     assert alone > 0.8 and both < alone - 0.2, (alone, both)
     (tmp_path / "empty").mkdir()
-    import subprocess
-
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     proc = subprocess.run([sys.executable, os.path.join(repo, "training", "train_verifier.py"), "--tracks",
                            str(tmp_path / "a"), str(tmp_path / "empty"), "--out", str(tmp_path / "run")],

@@ -219,6 +219,11 @@ def train_members(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed:
     return ensemble(nets)
 
 
+# the columns an excursion writes (its jump, in box sizes and in pixels) and the box size it reads
+_REL_DX, _REL_DY, _LOG_REL_PX = FEATURES.index("rel_dx"), FEATURES.index("rel_dy"), FEATURES.index("log_rel_px")
+_LOG2_W, _LOG2_H = FEATURES.index("log2_w"), FEATURES.index("log2_h")
+
+
 def excursions(xb: np.ndarray, yb: np.ndarray, rng, frac: float) -> np.ndarray:
     """``frac`` of the drone windows in a batch [N, T, F] get a brief excursion: one or two rows inside
     the window (never its first or its current row) taken from a not-drone window of the batch, the
@@ -249,10 +254,6 @@ def excursions(xb: np.ndarray, yb: np.ndarray, rng, frac: float) -> np.ndarray:
             out[i, row, _REL_DX], out[i, row, _REL_DY] = d
             out[i, row, _LOG_REL_PX] = np.log1p(float(np.hypot(*d)) * size_px)
     return out
-
-
-_REL_DX, _REL_DY, _LOG_REL_PX = FEATURES.index("rel_dx"), FEATURES.index("rel_dy"), FEATURES.index("log_rel_px")
-_LOG2_W, _LOG2_H = FEATURES.index("log2_w"), FEATURES.index("log2_h")
 
 
 def train(x: np.ndarray, y: np.ndarray, w: np.ndarray, steps: int, seed: int, log_every: int = 500,
