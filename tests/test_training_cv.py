@@ -396,6 +396,41 @@ def test_an_excursion_strays_inside_a_drone_window_and_comes_back():
     assert np.array_equal(excursions(xb, yb, rng, 0.0), xb)
 
 
+def test_a_view_trained_with_excursions_never_sees_the_jump_in_its_zeroed_columns(monkeypatch):
+    """The excursions write the motion columns; a view trained without them (``motion``) must still
+    see zeros there in every batch, or it would learn from values its file never feeds it."""
+    import numpy as np
+
+    import training.train_verifier as tv
+    from payload.detect.verify import FEATURES, N_FEATURES
+
+    seen = []
+    build = tv.build_net
+
+    def recording_net(mean, std):
+        net = build(mean, std)
+        net.register_forward_pre_hook(lambda module, inputs: seen.append(inputs[0].detach().numpy().copy()))
+        return net
+
+    monkeypatch.setattr(tv, "build_net", recording_net)
+    rng = np.random.default_rng(0)
+    x = rng.normal(0.0, 0.3, size=(64, tv.WINDOW, N_FEATURES)).astype(np.float32)
+    x[:, :, 0] = 1.0
+    y = (np.arange(64) % 2).astype(np.float32)
+    w = np.ones(64, np.float32)
+    motion = [FEATURES.index(f) for f in tv.VIEWS["motion"]]
+    for view in ("all", "motion"):
+        keep = tv.view_keep(view, N_FEATURES)
+        seen.clear()
+        tv.train(x * keep, y, w, steps=4, seed=0, log_every=0, excursion=1.0,
+                 columns=None if keep.all() else keep)
+        jumps = np.abs(np.concatenate(seen)[:, :, motion[:2]]).max()
+        if view == "all":
+            assert jumps >= 3.0  # the excursions happened
+        else:
+            assert jumps == 0.0, view
+
+
 def test_a_second_mining_is_learned_and_the_first_is_scored(tmp_path):
     """--tracks A B: the networks learn the locks of both minings (the same clips as other detectors
     locked them), the cross-validation scores A's. B here says the opposite of A, so learning it
