@@ -159,6 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dets-dir", default=None, metavar="DIR",
                    help="keep each clip's detections here; a rerun with the same settings resumes / re-scores from them")
     p.add_argument("--iou", type=float, default=0.5, help="IoU a match must exceed (default 0.5, the paper's)")
+    p.add_argument("--ego-motion", type=int, default=None, metavar="SEED",
+                   help="warp every clip (frames and labels) as if the camera turned, rolled, zoomed and shook, one "
+                        "camera path per clip from SEED: the payload flies, most Halmstad clips are filmed from the ground")
     p.add_argument("--json", default=None, help="write every figure (per fold, per clip, summary) as JSON here")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cv)

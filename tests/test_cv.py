@@ -287,6 +287,28 @@ def test_cv_command_on_a_tiny_data_set(tiny_halmstad, tmp_path, capsys):
     assert json.loads((tmp_path / "again.json").read_text())["summary"] == summary
 
 
+def test_cv_command_under_camera_motion(tiny_halmstad, tmp_path, capsys):
+    # --ego-motion: every clip warped as if the camera moved (frames and labels), grouped as the clip
+    # it came from; detections kept for the clips as filmed are not taken for these
+    root, folds = tiny_halmstad
+    argv = ["cv", "--splits", str(root / "splits.json"), "--folds", str(folds), "--no-progress",
+            "--dets-dir", str(tmp_path / "dets")]
+    out = tmp_path / "cv.json"
+    assert main(argv + ["--ego-motion", "3", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "each warped by a camera path from seed 3" in printed
+    report = json.loads(out.read_text())
+    assert report["ego_motion"] == 3 and "--ego-motion 3" in report["command"]
+    for fold, entry in enumerate(report["folds"]):
+        assert sorted(c["name"] for c in entry["clips"]) == sorted(
+            "%s_%03d~ego3" % (k, 10 * fold + 1) for k in ("V_DRONE", "IR_DRONE", "V_BIRD", "IR_AIRPLANE"))
+        assert set(entry["groups"]) == set(cv.GROUPS)
+        assert entry["groups"]["visible drones"]["gt"] > 0  # the warped labels are scored
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "other settings" in err and "ego_motion" in err and "\n" not in err
+
+
 def test_fold_model_files_of_a_fold_and_of_all_folds(tmp_path):
     from payload.offline import UsageError
 

@@ -66,8 +66,9 @@ NEGATIVE_METRICS: Tuple[Tuple[str, str, Callable[[ClipScore], float]], ...] = (
 
 
 def group_of(name: str) -> str:
-    """``V_DRONE_013`` -> 'visible drones', ``IR_BIRD_004`` -> 'thermal negatives'."""
-    kind, _ = parse_clip(name)
+    """``V_DRONE_013`` -> 'visible drones', ``IR_BIRD_004`` -> 'thermal negatives' (also as
+    ``V_DRONE_013~ego7``, warped by ``--ego-motion``)."""
+    kind, _ = parse_clip(name.split("~", 1)[0])
     sensor = "visible" if kind.startswith("V_") else "thermal"
     return "%s %s" % (sensor, "drones" if kind.endswith("_DRONE") else "negatives")
 

@@ -7,7 +7,14 @@ import time
 from typing import Any, Dict, List
 
 from payload.errors import DataError
-from payload.offline import UsageError, camera_for, describe_camera, find_splits, glad_detector
+from payload.offline import (
+    UsageError,
+    camera_for,
+    describe_camera,
+    find_splits,
+    glad_detector,
+    with_ego_motion,
+)
 
 
 def _detector_for(args, cfgs) -> Any:
@@ -38,7 +45,11 @@ def main_cv(args) -> int:
             cfgs = {f: cfg for f in only}
             models = cv.SHIPPED_NOTE
         per_fold = cv.fold_clips(cv.halmstad_clips(data_dir), folds, args.limit_clips)
+        if args.ego_motion is not None:
+            per_fold = [with_ego_motion(clips, args.ego_motion) for clips in per_fold]
         settings: Dict[str, Any] = {"fold_ranges": folds.ranges, "block_size": folds.block_size, "limit": args.limit}
+        if args.ego_motion is not None:  # kept detections of the clips as filmed are not these
+            settings["ego_motion"] = args.ego_motion
         fold_settings = {f: {"config": flat_config(c), "models": cv.model_digests(c)} for f, c in cfgs.items()}
         detector_for = _detector_for(args, cfgs)
         if args.dets_dir:
@@ -60,6 +71,8 @@ def main_cv(args) -> int:
         subset.append("the first %d frames of each clip" % args.limit)
     if len(only) < folds.k:
         subset.append("folds %s only" % " ".join(map(str, only)))
+    if args.ego_motion is not None:
+        subset.append("each warped by a camera path from seed %d" % args.ego_motion)
     print("clips: %d (%s)" % (sum(len(per_fold[f]) for f in only), ", ".join(subset) if subset else "all"), flush=True)
     started = time.time()
     results = cv.run_cv(per_fold, detector_for, camera_for(cfg), args.iou, only)
@@ -79,7 +92,8 @@ def main_cv(args) -> int:
     if args.json:
         meta = {"command": "glad-payload cv " + " ".join(_argv(args)), "models": models,
                 "optimistic": not args.fold_models, "iou_match": args.iou, "camera": describe_camera(cfg),
-                "limit": args.limit, "limit_clips": args.limit_clips, "folds_file": folds.source, "folds_run": only,
+                "limit": args.limit, "limit_clips": args.limit_clips, "ego_motion": args.ego_motion,
+                "folds_file": folds.source, "folds_run": only,
                 "fold_ranges": folds.ranges, "seconds": round(time.time() - started, 1)}
         try:
             with open(args.json, "w", encoding="utf-8") as handle:
@@ -95,7 +109,7 @@ def _argv(args) -> List[str]:
     out: List[str] = []
     for flag, value in (("--config", args.config), ("--folds", args.folds), ("--fold-models", args.fold_models),
                         ("--limit", args.limit or None), ("--limit-clips", args.limit_clips or None),
-                        ("--dets-dir", args.dets_dir), ("--json", args.json)):
+                        ("--ego-motion", args.ego_motion), ("--dets-dir", args.dets_dir), ("--json", args.json)):
         if value is not None:
             out += [flag, str(value)]
     if args.folds_only:
