@@ -36,6 +36,7 @@ def test_a_fold_is_mined_and_taught_only_by_what_never_saw_it():
     assert [fold_of(folds, n) for n in ("IR_BIRD_005", "IR_BIRD_015", "IR_BIRD_025")] == [0, 1, 2]
     # synthetic scenes: the seed decides, the same for every kind of scene
     assert [fold_of(folds, n) for n in ("SYN_DRONE_5000", "SYN_EMPTY_6001", "SYN_LIGHT_DRONE_7005")] == [2, 1, 0]
+    assert fold_of(folds, "IR_BIRD_015~ego7") == 1  # a clip warped by --ego-motion stays in its fold
     objects = ["irobj0", "irobj1", "irobj2"]
     assert hard_sets(objects, "1") == ["irobj0", "irobj2"]
     assert hard_sets(objects, "0") == ["irobj1", "irobj2"]
@@ -535,3 +536,39 @@ def test_a_folds_classifier_learns_nothing_of_the_folds_clips_in_either_step(tmp
     export = commands["fold %d export glad_classifier.onnx" % held]
     tuned = os.path.join(cv_train.HERE, "runs", second[second.index("--name") + 1], "last.pt")
     assert os.path.normpath(export[-2]) == os.path.normpath(tuned)
+
+
+def test_a_clip_mined_under_camera_motion_has_its_frames_and_labels_warped_alike(tmp_path):
+    # --ego-motion: the locks of a clip as a moving camera would film it; the drone's label must
+    # move with its pixels, or the verifier learns drones as clutter
+    import cv2
+    import numpy as np
+
+    from payload.offline import ClipSpec, with_ego_motion
+    from training.mine_tracks import halmstad_frames
+
+    video, labels = tmp_path / "V_DRONE_001.mp4", tmp_path / "V_DRONE_001.csv"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (320, 240))
+    rows = []
+    for i in range(20):
+        img = np.full((240, 320, 3), 200, np.uint8)
+        x, y = 100 + 3 * i, 90
+        cv2.rectangle(img, (x, y), (x + 15, y + 11), (20, 20, 20), -1)
+        writer.write(img)
+        rows.append("%d,DRONE,%d,%d,16,12" % (i, x, y))
+    writer.release()
+    labels.write_text("frame,class,x,y,w,h\n" + "\n".join(rows) + "\n")
+    clip = ClipSpec("V_DRONE_001", str(video), str(labels))
+    plain = list(halmstad_frames(clip))
+    warped = list(halmstad_frames(with_ego_motion([clip], 3)[0]))
+    assert len(warped) == len(plain) == 20
+    moved = 0
+    for (i, raw, raw_box), (j, image, box) in zip(plain, warped):
+        assert i == j and image.shape == raw.shape
+        dark = np.argwhere(image.min(axis=2) < 80)  # the drone's pixels where the camera put them
+        cy, cx = dark.mean(axis=0)
+        x1, y1, x2, y2 = box[0]
+        assert x1 - 2 <= cx <= x2 + 2 and y1 - 2 <= cy <= y2 + 2, (i, (cx, cy), box[0])
+        moved += np.hypot(*((box[0, :2] + box[0, 2:]) / 2 - (raw_box[0, :2] + raw_box[0, 2:]) / 2)) > 2
+    assert moved >= 10  # the camera did move the drone
+

@@ -32,6 +32,7 @@ from payload.detect.verify import N_FEATURES, PATCH_PX, target_patch  # noqa: E4
 from payload.eval.cv import DETECTOR_FILES, fold_model_files, halmstad_clips  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
+from payload.offline import with_ego_motion  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
 from payload.types import Frame  # noqa: E402
 
@@ -40,10 +41,11 @@ SYNTH_DRONE_SEED, SYNTH_EMPTY_SEED, SYNTH_LIGHT_SEED = 5000, 6000, 7000
 
 
 def fold_of(folds, name: str) -> int:
-    """A clip's fold; a synthetic scene's is its seed modulo the number of folds."""
+    """A clip's fold (also as ``V_DRONE_013~ego7``, warped by --ego-motion); a synthetic scene's is its
+    seed modulo the number of folds."""
     if name.startswith("SYN_"):
         return int(name.rsplit("_", 1)[1]) % folds.k
-    return folds.fold_of(name)
+    return folds.fold_of(name.split("~", 1)[0])
 
 
 def nearest(gt: np.ndarray, box) -> np.ndarray:
@@ -98,16 +100,20 @@ def run(glad, frames, fps=30.0):
 
 
 def halmstad_frames(clip):
+    """(index, image, drone boxes) of a clip, warped by its camera path where it has one (--ego-motion)."""
     import cv2
 
     labels = load_labels(clip.labels, classes=("DRONE",))
+    warp = clip.ego_motion
+    if warp is not None:
+        labels = warp.labels(labels)
     cap = cv2.VideoCapture(clip.video)
     i = 0
     while True:
         ok, image = cap.read()
         if not ok:
             break
-        yield i, image, labels.get(i)
+        yield i, (image if warp is None else warp.image(i, image)), labels.get(i)
         i += 1
     cap.release()
 
@@ -145,7 +151,10 @@ def jobs(args, folds=None):
     """(name, frames) of the clips and scenes of ``args.shard``; with ``args.folds``, of those folds only."""
     out = []
     if not args.synthetic_only:
-        for clip in halmstad_clips(args.data):
+        clips = halmstad_clips(args.data)
+        if args.ego_motion is not None:
+            clips = with_ego_motion(clips, args.ego_motion)  # one camera path per clip, as eval and cv warp them
+        for clip in clips:
             out.append((clip.name, lambda clip=clip: halmstad_frames(clip)))
     for k in range(args.synthetic_first, args.synthetic_first + args.synthetic):
         for seed, with_drone in ((SYNTH_DRONE_SEED + k, True), (SYNTH_EMPTY_SEED + k, False)):
@@ -182,6 +191,9 @@ def main():
     ap.add_argument("--scene-frames", type=int, default=150)
     ap.add_argument("--fold-models", default=None, metavar="DIR",
                     help="run each clip with the networks of its fold: DIR/fold{k}/glad_*.onnx")
+    ap.add_argument("--ego-motion", type=int, default=None, metavar="SEED",
+                    help="the Halmstad clips warped as if the camera moved (glad-payload cv --ego-motion SEED's camera "
+                         "paths; the synthetic scenes have their own)")
     ap.add_argument("--folds", type=int, nargs="+", default=None, metavar="K",
                     help="only the clips and scenes of these folds (e.g. while the other folds' networks still train)")
     args = ap.parse_args()
