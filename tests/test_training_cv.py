@@ -462,6 +462,13 @@ def test_a_second_mining_is_learned_and_the_first_is_scored(tmp_path):
 
     alone, both = drone_oof("a"), drone_oof("a", "b")
     assert alone > 0.8 and both < alone - 0.2, (alone, both)
+    # --score B: the networks learn A alone and judge B's locks, which say the opposite
+    out = tmp_path / "scored"
+    train_verifier(["--tracks", str(tmp_path / "a"), "--score", str(tmp_path / "b"), "--out", str(out), "--steps", "60",
+                    "--members", "1", "--min-frames", "4", "--thresholds", "0.5"])
+    oof = np.load(str(out / "oof_prob.npz"))
+    assert sorted(oof.files) == sorted(names)
+    assert np.mean([oof[n].mean() for n in names if "_DRONE_" in n]) < alone - 0.2
     (tmp_path / "empty").mkdir()
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     proc = subprocess.run([sys.executable, os.path.join(repo, "training", "train_verifier.py"), "--tracks",
@@ -470,6 +477,11 @@ def test_a_second_mining_is_learned_and_the_first_is_scored(tmp_path):
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and str(tmp_path / "empty") in lines[0] and "no mined locks" in lines[0], proc.stderr
+    proc = subprocess.run([sys.executable, os.path.join(repo, "training", "train_verifier.py"), "--tracks",
+                           str(tmp_path / "a"), "--score", str(tmp_path / "empty"), "--out", str(tmp_path / "run")],
+                          capture_output=True, text=True, timeout=120)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode != 0 and len(lines) == 1 and "--score %s" % (tmp_path / "empty") in lines[0], proc.stderr
 
 
 def test_a_classifier_from_another_run_replaces_the_classifier_stage(tmp_path, monkeypatch, capsys):

@@ -472,6 +472,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--tracks", nargs="+", default=["training/cache/tracks"], metavar="DIR",
                     help="mined locks (training/mine_tracks.py); with several, the networks learn the locks of all of them (the same clips as other detectors locked them) and the cross-validation scores the first's")
+    ap.add_argument("--score", default=None, metavar="DIR",
+                    help="score this mining out of fold instead of the first of --tracks; it is learned only if "
+                         "--tracks lists it too (e.g. the clips under camera motion: does a verifier that never saw "
+                         "them judge them?)")
     ap.add_argument("--out", default="training/runs/verifier")
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=0)
@@ -514,11 +518,12 @@ def main(argv=None):
     os.makedirs(args.out, exist_ok=True)
     t0 = time.time()
     minings = [load(d, args.window, args.look) for d in args.tracks]
-    for d, m in zip(args.tracks, minings):
+    scored = load(args.score, args.window, args.look) if args.score else minings[0]
+    for flag, d, m in [("--tracks", d, m) for d, m in zip(args.tracks, minings)] + [("--score", args.score, scored)]:
         if not m:
-            raise SystemExit("--tracks %s: no mined locks (<clip>.npz from training/mine_tracks.py) there" % d)
-    clips, learned = minings[0], [c for m in minings for c in m]
-    print("clips %d, lock frames %d, learned from %d minings (%.0f s)"
+            raise SystemExit("%s %s: no mined locks (<clip>.npz from training/mine_tracks.py) there" % (flag, d))
+    clips, learned = scored, [c for m in minings for c in m]
+    print("clips %d scored, lock frames %d, learned from %d minings (%.0f s)"
           % (len(clips), sum(len(c["rows"]) for c in clips), len(minings), time.time() - t0))
     k = max(c["fold"] for c in clips) + 1
     prob = {}
