@@ -161,6 +161,10 @@ def synthetic_clips(cfg, out_dir: str, frames: int, seeds: Sequence[int],
     return [synthetic_clip(cfg, out_dir, frames, seed, target_px, video=False) for seed in seeds]
 
 
+#: Between a recording's name and the camera path that warped it (``with_ego_motion``).
+WARPED_MARK = "~"
+
+
 def with_ego_motion(clips: Sequence[ClipSpec], seed: int) -> List[ClipSpec]:
     """The recordings warped by synthetic camera motion, one seeded camera path per clip."""
     import cv2
@@ -176,8 +180,13 @@ def with_ego_motion(clips: Sequence[ClipSpec], seed: int) -> List[ClipSpec]:
         if min(size_wh) <= 0:
             raise UsageError("%s: cannot read the video's frame size for --ego-motion" % clip.video)
         warp = EgoMotionWarp((seed, position), size_wh, fps)
-        warped.append(dataclasses.replace(clip, name=clip.name + "~ego%d" % seed, ego_motion=warp))
+        warped.append(dataclasses.replace(clip, name=clip.name + WARPED_MARK + "ego%d" % seed, ego_motion=warp))
     return warped
+
+
+def recorded_name(name: str) -> str:
+    """The recording a clip name stands for: ``V_DRONE_013~ego7`` (``with_ego_motion``) -> ``V_DRONE_013``."""
+    return name.split(WARPED_MARK, 1)[0]
 
 
 def clip_frame_size(clip: ClipSpec) -> Tuple[int, int]:

@@ -32,7 +32,7 @@ from payload.detect.verify import N_FEATURES, PATCH_PX, target_patch  # noqa: E4
 from payload.eval.cv import DETECTOR_FILES, fold_model_files, halmstad_clips  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
-from payload.offline import with_ego_motion  # noqa: E402
+from payload.offline import recorded_name, with_ego_motion  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
 from payload.types import Frame  # noqa: E402
 
@@ -45,7 +45,7 @@ def fold_of(folds, name: str) -> int:
     seed modulo the number of folds."""
     if name.startswith("SYN_"):
         return int(name.rsplit("_", 1)[1]) % folds.k
-    return folds.fold_of(name.split("~", 1)[0])
+    return folds.fold_of(recorded_name(name))
 
 
 def nearest(gt: np.ndarray, box) -> np.ndarray:

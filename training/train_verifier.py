@@ -519,7 +519,8 @@ def main(argv=None):
     t0 = time.time()
     minings = [load(d, args.window, args.look) for d in args.tracks]
     scored = load(args.score, args.window, args.look) if args.score else minings[0]
-    for flag, d, m in [("--tracks", d, m) for d, m in zip(args.tracks, minings)] + [("--score", args.score, scored)]:
+    given = [("--tracks", d, m) for d, m in zip(args.tracks, minings)] + ([("--score", args.score, scored)] if args.score else [])
+    for flag, d, m in given:
         if not m:
             raise SystemExit("%s %s: no mined locks (<clip>.npz from training/mine_tracks.py) there" % (flag, d))
     clips, learned = scored, [c for m in minings for c in m]

@@ -26,7 +26,7 @@ import numpy as np
 from payload.errors import DataError
 from payload.eval.folds import Folds, parse_clip
 from payload.eval.metrics import IOU_MATCH, ClipScore, pool
-from payload.offline import ClipSpec, DetectFn, UsageError, score_clips
+from payload.offline import ClipSpec, DetectFn, UsageError, recorded_name, score_clips
 from payload.records import DetectionsCsvWriter, read_detections_csv
 from payload.types import Detections
 
@@ -68,7 +68,7 @@ NEGATIVE_METRICS: Tuple[Tuple[str, str, Callable[[ClipScore], float]], ...] = (
 def group_of(name: str) -> str:
     """``V_DRONE_013`` -> 'visible drones', ``IR_BIRD_004`` -> 'thermal negatives' (also as
     ``V_DRONE_013~ego7``, warped by ``--ego-motion``)."""
-    kind, _ = parse_clip(name.split("~", 1)[0])
+    kind, _ = parse_clip(recorded_name(name))
     sensor = "visible" if kind.startswith("V_") else "thermal"
     return "%s %s" % (sensor, "drones" if kind.endswith("_DRONE") else "negatives")
 
