@@ -171,6 +171,8 @@ def with_ego_motion(clips: Sequence[ClipSpec], seed: int) -> List[ClipSpec]:
 
     from payload.synth.ego_motion import EgoMotionWarp
 
+    if seed < 0:  # numpy's seeding takes no negative number; refused here, not as its traceback
+        raise UsageError("--ego-motion %d: expected a seed >= 0" % seed)
     warped = []
     for position, clip in enumerate(clips):
         cap = cv2.VideoCapture(clip.video)

@@ -307,6 +307,9 @@ def test_cv_command_under_camera_motion(tiny_halmstad, tmp_path, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert "other settings" in err and "ego_motion" in err and "\n" not in err
+    # a seed numpy cannot take: one line, not its traceback (eval --ego-motion shares the check)
+    assert main(argv[:-2] + ["--ego-motion", "-1"]) == 2
+    assert capsys.readouterr().err.strip() == "glad-payload cv: --ego-motion -1: expected a seed >= 0"
 
 
 def test_fold_model_files_of_a_fold_and_of_all_folds(tmp_path):
