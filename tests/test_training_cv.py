@@ -584,3 +584,13 @@ def test_a_clip_mined_under_camera_motion_has_its_frames_and_labels_warped_alike
         moved += np.hypot(*((box[0, :2] + box[0, 2:]) / 2 - (raw_box[0, :2] + raw_box[0, 2:]) / 2)) > 2
     assert moved >= 10  # the camera did move the drone
 
+
+
+def test_mine_tracks_refuses_a_negative_camera_motion_seed_in_one_line(tmp_path):
+    import subprocess
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.run([sys.executable, os.path.join(repo, "training", "mine_tracks.py"), "--out", str(tmp_path / "out"),
+                           "--ego-motion", "-1", "--synthetic", "0"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert proc.stderr.strip() == "--ego-motion -1: expected a seed >= 0"
+    assert not (tmp_path / "out").exists()  # refused before anything is written

@@ -198,6 +198,8 @@ def main():
                     help="only the clips and scenes of these folds (e.g. while the other folds' networks still train)")
     args = ap.parse_args()
     check_synthetic_range(args.synthetic_first, args.synthetic)
+    if args.ego_motion is not None and args.ego_motion < 0:  # refused before any clip is read or mined
+        raise SystemExit("--ego-motion %d: expected a seed >= 0" % args.ego_motion)
     os.makedirs(args.out, exist_ok=True)
     import cv2
 
