@@ -165,14 +165,19 @@ def synthetic_clips(cfg, out_dir: str, frames: int, seeds: Sequence[int],
 WARPED_MARK = "~"
 
 
+def check_ego_motion_seed(seed: int) -> None:
+    """Refuse (UsageError, one line) a camera-path seed numpy's seeding cannot take, before any clip is read."""
+    if seed < 0:
+        raise UsageError("--ego-motion %d: expected a seed >= 0" % seed)
+
+
 def with_ego_motion(clips: Sequence[ClipSpec], seed: int) -> List[ClipSpec]:
     """The recordings warped by synthetic camera motion, one seeded camera path per clip."""
     import cv2
 
     from payload.synth.ego_motion import EgoMotionWarp
 
-    if seed < 0:  # numpy's seeding takes no negative number; refused here, not as its traceback
-        raise UsageError("--ego-motion %d: expected a seed >= 0" % seed)
+    check_ego_motion_seed(seed)
     warped = []
     for position, clip in enumerate(clips):
         cap = cv2.VideoCapture(clip.video)

@@ -585,7 +585,6 @@ def test_a_clip_mined_under_camera_motion_has_its_frames_and_labels_warped_alike
     assert moved >= 10  # the camera did move the drone
 
 
-
 def test_mine_tracks_refuses_a_negative_camera_motion_seed_in_one_line(tmp_path):
     import subprocess
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -32,7 +32,7 @@ from payload.detect.verify import N_FEATURES, PATCH_PX, target_patch  # noqa: E4
 from payload.eval.cv import DETECTOR_FILES, fold_model_files, halmstad_clips  # noqa: E402
 from payload.eval.folds import load_folds  # noqa: E402
 from payload.eval.labels import load_labels  # noqa: E402
-from payload.offline import recorded_name, with_ego_motion  # noqa: E402
+from payload.offline import UsageError, check_ego_motion_seed, recorded_name, with_ego_motion  # noqa: E402
 from payload.synth.scene import Scene  # noqa: E402
 from payload.types import Frame  # noqa: E402
 
@@ -198,8 +198,11 @@ def main():
                     help="only the clips and scenes of these folds (e.g. while the other folds' networks still train)")
     args = ap.parse_args()
     check_synthetic_range(args.synthetic_first, args.synthetic)
-    if args.ego_motion is not None and args.ego_motion < 0:  # refused before any clip is read or mined
-        raise SystemExit("--ego-motion %d: expected a seed >= 0" % args.ego_motion)
+    if args.ego_motion is not None:  # refused before any clip is read or mined
+        try:
+            check_ego_motion_seed(args.ego_motion)
+        except UsageError as e:
+            raise SystemExit(str(e)) from None
     os.makedirs(args.out, exist_ok=True)
     import cv2
 
